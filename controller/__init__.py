@@ -1,0 +1,1 @@
+"""The control law (planner, behaviours, coordinators) and the controller node."""

@@ -1,0 +1,313 @@
+"""The fuzzy rule base of Table 2 and its exact, fast Mamdani inference.
+
+The rule base (membership functions and the 3x3 table) lives in ``data/fuzzy_rules.json``.
+Inference is textbook Mamdani, the one scikit-fuzzy's ``ControlSystem`` computes: ``min`` for
+AND and for implication (clipping), ``max`` to aggregate, centroid to defuzzify. The centroid
+is computed in closed form rather than on a sampled universe: the output terms form a
+triangular partition, so between two neighbouring peaks only two clipped edges are non-zero
+and their union integrates exactly. That makes one evaluation a few microseconds of plain
+Python and free of any sampling error.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from protocol.errors import ConfigError
+
+INPUT_NAMES = ("min_distance", "beta")
+OUTPUT_NAMES = ("k_T", "k_C")
+OUTPUT_TERMS = ("small", "medium", "big")
+
+
+@dataclass(frozen=True, slots=True)
+class Trapezoid:
+    """Membership rising a->b, 1 on [b, c], falling c->d (a == b or c == d: a shoulder)."""
+
+    a: float
+    b: float
+    c: float
+    d: float
+
+    def __call__(self, x: float) -> float:
+        if x < self.a or x > self.d:
+            return 0.0
+        if x < self.b:
+            return (x - self.a) / (self.b - self.a)
+        if x <= self.c:
+            return 1.0
+        return (self.d - x) / (self.d - self.c)
+
+
+@dataclass(frozen=True, slots=True)
+class FuzzyInput:
+    name: str
+    universe: tuple[float, float]
+    terms: dict[str, Trapezoid]
+
+
+@dataclass(frozen=True, slots=True)
+class FuzzyOutput:
+    """Three triangles peaking at small < medium < big, each reaching its neighbours' peaks."""
+
+    name: str
+    peaks: tuple[float, float, float]
+
+    @property
+    def universe(self) -> tuple[float, float]:
+        small, medium, big = self.peaks
+        return (small - (medium - small), big + (big - medium))
+
+    def triangles(self) -> dict[str, tuple[float, float, float]]:
+        """The terms as (foot, peak, foot) triangles, for independent implementations."""
+        low, high = self.universe
+        small, medium, big = self.peaks
+        return {
+            "small": (low, small, medium),
+            "medium": (small, medium, big),
+            "big": (medium, big, high),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class Rule:
+    min_distance: str
+    beta: str
+    k_T: str  # noqa: N815 - the paper's symbol
+    k_C: str  # noqa: N815 - the paper's symbol
+
+
+@dataclass(frozen=True, slots=True)
+class RuleBase:
+    inputs: dict[str, FuzzyInput]
+    outputs: dict[str, FuzzyOutput]
+    rules: tuple[Rule, ...]
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> RuleBase:
+        """Read a rule base file; the packaged Table 2 when ``path`` is None."""
+        if path is None:
+            text = resources.files("controller").joinpath("data/fuzzy_rules.json").read_text()
+            source = "fuzzy_rules.json"
+        else:
+            text = Path(path).read_text()
+            source = str(path)
+        try:
+            document = json.loads(text)
+        except json.JSONDecodeError as error:
+            raise ConfigError(source, f"not valid JSON: {error}") from error
+        return cls.from_mapping(document)
+
+    @classmethod
+    def from_mapping(cls, document: Mapping[str, Any]) -> RuleBase:
+        inputs = {name: _parse_input(name, _field(document, "inputs", name)) for name in INPUT_NAMES}
+        outputs = {
+            name: _parse_output(name, _field(document, "outputs", name)) for name in OUTPUT_NAMES
+        }
+        raw_rules = document.get("rules")
+        if not isinstance(raw_rules, list) or not raw_rules:
+            raise ConfigError("rules", "must be a non-empty list")
+        rules = []
+        for index, raw in enumerate(raw_rules):
+            where = f"rules[{index}]"
+            if not isinstance(raw, dict):
+                raise ConfigError(where, "must be an object")
+            for name in INPUT_NAMES:
+                if raw.get(name) not in inputs[name].terms:
+                    raise ConfigError(
+                        f"{where}.{name}",
+                        f"unknown term {raw.get(name)!r}; known: {sorted(inputs[name].terms)}",
+                    )
+            for name in OUTPUT_NAMES:
+                if raw.get(name) not in OUTPUT_TERMS:
+                    raise ConfigError(f"{where}.{name}", f"must be one of {OUTPUT_TERMS}")
+            rules.append(Rule(raw["min_distance"], raw["beta"], raw["k_T"], raw["k_C"]))
+        base = cls(inputs, outputs, tuple(rules))
+        base._check_coverage()
+        return base
+
+    def _check_coverage(self) -> None:
+        """Every input pair must fire some rule, or the centroid would be undefined."""
+        for name, fuzzy_input in self.inputs.items():
+            points = sorted({p for t in fuzzy_input.terms.values() for p in (t.a, t.b, t.c, t.d)})
+            probes = points + [(p + q) / 2.0 for p, q in zip(points, points[1:], strict=False)]
+            low, high = fuzzy_input.universe
+            for x in probes:
+                if low <= x <= high and max(t(x) for t in fuzzy_input.terms.values()) <= 0.0:
+                    raise ConfigError(f"inputs.{name}.terms", f"no term covers {x:g}")
+        pairs = {(rule.min_distance, rule.beta) for rule in self.rules}
+        for distance_term in self.inputs["min_distance"].terms:
+            for beta_term in self.inputs["beta"].terms:
+                if (distance_term, beta_term) not in pairs:
+                    raise ConfigError(
+                        "rules", f"no rule for min_distance={distance_term}, beta={beta_term}"
+                    )
+
+
+class FuzzyInference:
+    """Evaluates a :class:`RuleBase`: ``weights(min_distance, beta) -> (k_T, k_C)``."""
+
+    def __init__(self, rule_base: RuleBase) -> None:
+        self.rule_base = rule_base
+        distance, beta = rule_base.inputs["min_distance"], rule_base.inputs["beta"]
+        self._distance_terms = tuple(distance.terms.values())
+        self._beta_terms = tuple(beta.terms.values())
+        self._distance_range = distance.universe
+        self._beta_range = beta.universe
+        distance_index = {name: i for i, name in enumerate(distance.terms)}
+        beta_index = {name: i for i, name in enumerate(beta.terms)}
+        output_index = {name: i for i, name in enumerate(OUTPUT_TERMS)}
+        self._rules = tuple(
+            (
+                distance_index[rule.min_distance],
+                beta_index[rule.beta],
+                output_index[rule.k_T],
+                output_index[rule.k_C],
+            )
+            for rule in rule_base.rules
+        )
+        self._peaks_t = rule_base.outputs["k_T"].peaks
+        self._peaks_c = rule_base.outputs["k_C"].peaks
+
+    def weights(self, min_distance: float, beta: float) -> tuple[float, float]:
+        """k_T and k_C for one pair of inputs (clamped to their universes)."""
+        low, high = self._distance_range
+        min_distance = low if min_distance < low else high if min_distance > high else min_distance
+        low, high = self._beta_range
+        beta = low if beta < low else high if beta > high else beta
+        mu_distance = [term(min_distance) for term in self._distance_terms]
+        mu_beta = [term(beta) for term in self._beta_terms]
+        fired_t = [0.0, 0.0, 0.0]
+        fired_c = [0.0, 0.0, 0.0]
+        for distance_i, beta_i, term_t, term_c in self._rules:
+            strength = min(mu_distance[distance_i], mu_beta[beta_i])
+            if strength > fired_t[term_t]:
+                fired_t[term_t] = strength
+            if strength > fired_c[term_c]:
+                fired_c[term_c] = strength
+        return (
+            centroid_of_partition(self._peaks_t, fired_t),
+            centroid_of_partition(self._peaks_c, fired_c),
+        )
+
+
+def centroid_of_partition(peaks: Sequence[float], fired: Sequence[float]) -> float:
+    """Exact centroid of max(min(fired_k, term_k)) over a three-triangle partition.
+
+    The union splits at the peaks into four pieces; on each piece, in the normalised
+    coordinate u in [0, 1], it is a clipped rising edge, a clipped falling edge, or the
+    larger of one of each, all of which integrate in closed form.
+    """
+    small, medium, big = peaks
+    w_small, w_medium, w_big = fired
+    low_width = medium - small
+    high_width = big - medium
+    pieces = (
+        (small - low_width, low_width, _rising_only(w_small)),
+        (small, low_width, _falling_then_rising(w_small, w_medium)),
+        (medium, high_width, _falling_then_rising(w_medium, w_big)),
+        (big, high_width, _falling_only(w_big)),
+    )
+    area = 0.0
+    moment = 0.0
+    for start, width, (piece_area, piece_moment) in pieces:
+        area += width * piece_area
+        moment += width * (start * piece_area + width * piece_moment)
+    return moment / area
+
+
+def _rising_integrals(level: float, upto: float) -> tuple[float, float]:
+    """Integrals of min(level, u) and u*min(level, u) over [0, upto], upto in [0, 1]."""
+    if upto <= level:
+        return upto * upto / 2.0, upto**3 / 3.0
+    return (
+        level * level / 2.0 + level * (upto - level),
+        level**3 / 3.0 + level * (upto * upto - level * level) / 2.0,
+    )
+
+
+def _rising_only(level: float) -> tuple[float, float]:
+    return _rising_integrals(level, 1.0)
+
+
+def _falling_only(level: float) -> tuple[float, float]:
+    # min(level, 1 - u) mirrors the rising edge: the u-moment is area - mirrored moment.
+    area, mirrored = _rising_integrals(level, 1.0)
+    return area, area - mirrored
+
+
+def _falling_then_rising(falling: float, rising: float) -> tuple[float, float]:
+    """Integrals of max(min(falling, 1 - u), min(rising, u)) over [0, 1].
+
+    The falling part wins on [0, c] and the rising part on [c, 1], with c where they cross.
+    """
+    if falling <= rising and falling <= 0.5:
+        crossing = falling
+    elif rising < falling and rising <= 0.5:
+        crossing = 1.0 - rising
+    else:
+        crossing = 0.5
+    # Falling part on [0, c]: with v = 1 - u it is min(falling, v) over [1 - c, 1].
+    full_area, full_moment = _rising_integrals(falling, 1.0)
+    part_area, part_moment = _rising_integrals(falling, 1.0 - crossing)
+    falling_area = full_area - part_area
+    falling_moment = falling_area - (full_moment - part_moment)
+    # Rising part on [c, 1].
+    full_area, full_moment = _rising_integrals(rising, 1.0)
+    part_area, part_moment = _rising_integrals(rising, crossing)
+    return (
+        falling_area + full_area - part_area,
+        falling_moment + full_moment - part_moment,
+    )
+
+
+def _field(document: Mapping[str, Any], section: str, name: str) -> Mapping[str, Any]:
+    value = document.get(section, {}).get(name) if isinstance(document.get(section), dict) else None
+    if not isinstance(value, dict):
+        raise ConfigError(f"{section}.{name}", "missing or not an object")
+    return value
+
+
+def _number_list(where: str, value: Any, length: int) -> list[float]:
+    if (
+        not isinstance(value, list)
+        or len(value) != length
+        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        or not all(math.isfinite(v) for v in value)
+    ):
+        raise ConfigError(where, f"must be a list of {length} finite numbers, got {value!r}")
+    return [float(v) for v in value]
+
+
+def _parse_input(name: str, raw: Mapping[str, Any]) -> FuzzyInput:
+    low, high = _number_list(f"inputs.{name}.universe", raw.get("universe"), 2)
+    if low >= high:
+        raise ConfigError(f"inputs.{name}.universe", "must be [low, high] with low < high")
+    terms_raw = raw.get("terms")
+    if not isinstance(terms_raw, dict) or not terms_raw:
+        raise ConfigError(f"inputs.{name}.terms", "must be a non-empty object")
+    terms = {}
+    for term, points in terms_raw.items():
+        where = f"inputs.{name}.terms.{term}"
+        a, b, c, d = _number_list(where, points, 4)
+        if not a <= b <= c <= d or a == d:
+            raise ConfigError(where, "must satisfy a <= b <= c <= d with a < d")
+        terms[term] = Trapezoid(a, b, c, d)
+    return FuzzyInput(name, (low, high), terms)
+
+
+def _parse_output(name: str, raw: Mapping[str, Any]) -> FuzzyOutput:
+    peaks_raw = raw.get("peaks")
+    if not isinstance(peaks_raw, dict):
+        raise ConfigError(f"outputs.{name}.peaks", "must map small/medium/big to numbers")
+    values = [peaks_raw.get(term) for term in OUTPUT_TERMS]
+    small, medium, big = _number_list(f"outputs.{name}.peaks", values, 3)
+    if not small < medium < big:
+        raise ConfigError(f"outputs.{name}.peaks", "must satisfy small < medium < big")
+    return FuzzyOutput(name, (small, medium, big))

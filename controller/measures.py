@@ -1,0 +1,145 @@
+"""The measures of a run (DESIGN.md section 4), defined once for every source of runs."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from controller.runlog import RunLog
+from controller.scenario import Scenario
+
+WAYPOINT_TOLERANCE = 0.002
+"""m: a waypoint counts as passed when the TCP comes this close."""
+STOP_SPEED_FRACTION = 0.02
+"""A stop is planar TCP speed below this fraction of the planned mean speed ..."""
+STOP_MIN_TICKS = 3
+"""... for at least this many ticks in a row ..."""
+STOP_EDGE_MARGIN = 0.2
+"""... while the plan itself is moving, and not within this many seconds of start or end."""
+
+
+@dataclass(frozen=True, slots=True)
+class Measures:
+    collision_free: bool
+    min_clearance: float
+    stops: int
+    peak_jerk: float
+    rms_jerk: float
+    max_command_jump: float
+    completion_time: float
+    path_length: float
+    waypoint_miss: tuple[float, ...]
+
+    @property
+    def max_waypoint_miss(self) -> float:
+        return max(self.waypoint_miss)
+
+    def as_dict(self) -> dict[str, Any]:
+        values = asdict(self)
+        values["waypoint_miss"] = list(self.waypoint_miss)
+        values["max_waypoint_miss"] = self.max_waypoint_miss
+        return values
+
+
+# (attribute, label, unit, scale for display, format)
+TABLE_ROWS = (
+    ("collision_free", "collision-free", "", 1.0, "{}"),
+    ("min_clearance", "min clearance", "mm", 1e3, "{:.2f}"),
+    ("stops", "stops", "", 1.0, "{}"),
+    ("peak_jerk", "peak jerk", "m/s^3", 1.0, "{:.1f}"),
+    ("rms_jerk", "RMS jerk", "m/s^3", 1.0, "{:.2f}"),
+    ("max_command_jump", "max per-tick command jump", "rad/s", 1.0, "{:.4f}"),
+    ("completion_time", "completion time", "s", 1.0, "{:.3f}"),
+    ("path_length", "path length", "m", 1.0, "{:.4f}"),
+    ("max_waypoint_miss", "worst waypoint miss", "mm", 1e3, "{:.3f}"),
+)
+
+
+def tcp_velocity(scenario: Scenario, log: RunLog) -> np.ndarray:
+    """TCP velocity from the measured joint states (J q'), one row per tick."""
+    robot = scenario.robot
+    theta1, theta2 = log["theta1"], log["theta2"]
+    rate1, rate2 = log["theta1_rate"], log["theta2_rate"]
+    theta12 = theta1 + theta2
+    rate12 = rate1 + rate2
+    vx = -robot.a1 * np.sin(theta1) * rate1 - robot.a2 * np.sin(theta12) * rate12
+    vy = robot.a1 * np.cos(theta1) * rate1 + robot.a2 * np.cos(theta12) * rate12
+    return np.column_stack([vx, vy, -log["d3_rate"]])
+
+
+def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
+    times = log["t"]
+    period = scenario.controller.period
+    positions = log.columns("x", "y", "z")
+    velocity = tcp_velocity(scenario, log)
+    jerk = np.linalg.norm(np.diff(velocity, n=2, axis=0), axis=1) / period**2
+
+    clearance = log["clearance"]
+    min_clearance = float(np.min(clearance)) if len(clearance) else math.inf
+
+    waypoints = scenario.waypoints
+    planned = scenario.trajectory()
+    samples = np.linspace(waypoints[0].t, waypoints[-1].t, 2001)
+    planned_points = np.array([planned.evaluate(float(t))[0] for t in samples])
+    planned_length = float(np.sum(np.linalg.norm(np.diff(planned_points[:, :2], axis=0), axis=1)))
+    nominal_speed = planned_length / (waypoints[-1].t - waypoints[0].t)
+    threshold = STOP_SPEED_FRACTION * nominal_speed
+    planar_speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    watched = (
+        (log["reference_speed"] >= threshold)
+        & (times >= waypoints[0].t + STOP_EDGE_MARGIN)
+        & (times <= waypoints[-1].t - STOP_EDGE_MARGIN)
+    )
+    stops = _count_runs(watched & (planar_speed < threshold), STOP_MIN_TICKS)
+
+    misses = tuple(
+        float(np.min(np.linalg.norm(positions - (w.x, w.y, w.z), axis=1))) for w in waypoints
+    )
+    last = waypoints[-1]
+    done = (np.linalg.norm(positions - (last.x, last.y, last.z), axis=1) <= WAYPOINT_TOLERANCE) & (
+        times >= waypoints[-2].t
+    )
+    completion = float(times[np.argmax(done)] - waypoints[0].t) if done.any() else math.nan
+
+    commands = log.columns("command_theta1", "command_theta2")
+    return Measures(
+        collision_free=bool(min_clearance > 0.0),
+        min_clearance=min_clearance,
+        stops=stops,
+        peak_jerk=float(np.max(jerk)) if len(jerk) else 0.0,
+        rms_jerk=float(np.sqrt(np.mean(jerk**2))) if len(jerk) else 0.0,
+        max_command_jump=float(np.max(np.abs(np.diff(commands, axis=0)))) if len(commands) > 1 else 0.0,
+        completion_time=completion,
+        path_length=float(np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=1))),
+        waypoint_miss=misses,
+    )
+
+
+def _count_runs(flags: np.ndarray, min_length: int) -> int:
+    """How many runs of consecutive True values are at least ``min_length`` long."""
+    padded = np.concatenate([[False], flags, [False]]).astype(np.int8)
+    edges = np.diff(padded)
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return int(np.sum(ends - starts >= min_length))
+
+
+def format_table(results: dict[str, Measures]) -> str:
+    """The measures of several runs side by side, as a Markdown table."""
+    names = list(results)
+    lines = [
+        "| measure | " + " | ".join(names) + " |",
+        "|---|" + "---:|" * len(names),
+    ]
+    for attribute, label, unit, scale, fmt in TABLE_ROWS:
+        cells = []
+        for name in names:
+            value = getattr(results[name], attribute)
+            if isinstance(value, bool) or isinstance(value, int):
+                cells.append(fmt.format(value))
+            else:
+                cells.append(fmt.format(value * scale))
+        lines.append(f"| {label}{f' ({unit})' if unit else ''} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -1,0 +1,245 @@
+"""Scenarios as TOML files: waypoints with times, the obstacle, the mode, the rates.
+
+A scenario is checked whole before anything moves: every value finite, times increasing,
+every waypoint reachable within the joint limits and outside the obstacle, and the planned
+path between waypoints inside the workspace. Errors are :class:`ConfigError` and name the
+field (``waypoints[2].x``, ``obstacle.height``, ...).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from controller.config import ControllerConfig
+from controller.coordination import Mode
+from controller.obstacle import EllipticCylinder
+from controller.planner import Trajectory
+from plant_sim.model import PlantConfig
+from protocol.errors import ConfigError, KinematicsError
+from protocol.kinematics import Elbow, inverse
+from protocol.robot import RobotConfig
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+PATH_CHECK_STEP = 0.005  # s between the planned points checked against the workspace
+
+_TOP_LEVEL = {
+    "name",
+    "description",
+    "mode",
+    "elbow",
+    "settle_time",
+    "robot",
+    "controller",
+    "plant",
+    "obstacle",
+    "waypoints",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Waypoint:
+    t: float
+    x: float
+    y: float
+    z: float
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario:
+    name: str
+    waypoints: tuple[Waypoint, ...]
+    obstacle: EllipticCylinder | None
+    mode: Mode = Mode.FUZZY
+    elbow: Elbow = Elbow.DOWN
+    settle_time: float = 1.0
+    description: str = ""
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+    plant: PlantConfig = field(default_factory=PlantConfig)
+
+    def trajectory(self) -> Trajectory:
+        return Trajectory(
+            [w.t for w in self.waypoints], [(w.x, w.y, w.z) for w in self.waypoints]
+        )
+
+    def initial_joints(self) -> tuple[float, float, float]:
+        first = self.waypoints[0]
+        return inverse(self.robot, first.x, first.y, first.z, self.elbow)
+
+    @property
+    def duration(self) -> float:
+        """Planned time plus the settling time after the last waypoint."""
+        return self.waypoints[-1].t - self.waypoints[0].t + self.settle_time
+
+    def with_mode(self, mode: Mode) -> Scenario:
+        return Scenario(
+            self.name,
+            self.waypoints,
+            self.obstacle,
+            mode,
+            self.elbow,
+            self.settle_time,
+            self.description,
+            self.robot,
+            self.controller,
+            self.plant,
+        )
+
+
+def load_scenario(source: str | Path) -> Scenario:
+    """A scenario from a TOML file, or by name from the packaged ``scenarios/`` folder."""
+    path = Path(source)
+    if not path.exists() and not path.suffix:
+        path = SCENARIO_DIR / f"{source}.toml"
+    if not path.exists():
+        known = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
+        raise ConfigError("scenario", f"no file {str(source)!r} (packaged scenarios: {known})")
+    try:
+        document = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(str(path), f"not valid TOML: {error}") from error
+    return parse_scenario(document, default_name=path.stem)
+
+
+def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") -> Scenario:
+    """Build and fully check a scenario from its TOML tables."""
+    unknown = set(document) - _TOP_LEVEL
+    if unknown:
+        raise ConfigError(sorted(unknown)[0], f"unknown field; known: {sorted(_TOP_LEVEL)}")
+    robot = RobotConfig.from_mapping(dict(_table(document, "robot")))
+    controller = ControllerConfig.from_mapping(dict(_table(document, "controller")))
+    plant_table = _table(document, "plant")
+    try:
+        plant = PlantConfig(**plant_table)
+    except TypeError as error:
+        raise ConfigError("plant", str(error)) from error
+    mode_name = document.get("mode", "fuzzy")
+    try:
+        mode = Mode(mode_name)
+    except ValueError as error:
+        raise ConfigError("mode", f"must be 'fuzzy' or 'conventional', got {mode_name!r}") from error
+    elbow_name = document.get("elbow", "down")
+    if elbow_name not in ("up", "down"):
+        raise ConfigError("elbow", f"must be 'up' or 'down', got {elbow_name!r}")
+    elbow = Elbow.DOWN if elbow_name == "down" else Elbow.UP
+    settle_time = _number(document.get("settle_time", 1.0), "settle_time")
+    if settle_time < 0.0:
+        raise ConfigError("settle_time", "must not be negative")
+    obstacle = _parse_obstacle(document["obstacle"]) if "obstacle" in document else None
+    waypoints = _parse_waypoints(document.get("waypoints"))
+    scenario = Scenario(
+        name=str(document.get("name", default_name)),
+        waypoints=waypoints,
+        obstacle=obstacle,
+        mode=mode,
+        elbow=elbow,
+        settle_time=settle_time,
+        description=str(document.get("description", "")),
+        robot=robot,
+        controller=controller,
+        plant=plant,
+    )
+    check_scenario(scenario)
+    return scenario
+
+
+def check_scenario(scenario: Scenario) -> None:
+    """Every waypoint and the planned path between them must be reachable and free."""
+    obstacle = scenario.obstacle
+    for index, point in enumerate(scenario.waypoints):
+        try:
+            inverse(scenario.robot, point.x, point.y, point.z, scenario.elbow)
+        except KinematicsError as error:
+            raise ConfigError(f"waypoints[{index}]", str(error)) from error
+        if (
+            obstacle is not None
+            and point.z < obstacle.height + obstacle.inflation
+            and obstacle.contains(point.x, point.y)
+        ):
+            raise ConfigError(
+                f"waypoints[{index}]",
+                f"({point.x:g}, {point.y:g}, {point.z:g}) is inside the inflated obstacle",
+            )
+    trajectory = scenario.trajectory()
+    start, end = scenario.waypoints[0].t, scenario.waypoints[-1].t
+    steps = max(1, math.ceil((end - start) / PATH_CHECK_STEP))
+    for step in range(steps + 1):
+        t = start + (end - start) * step / steps
+        x, y, z = trajectory.evaluate(t)[0]
+        try:
+            inverse(scenario.robot, x, y, z, scenario.elbow)
+        except KinematicsError as error:
+            segment = trajectory.segment_index(t)
+            raise ConfigError(
+                f"waypoints[{segment - 1}..{segment}]",
+                f"the planned path leaves the workspace at t = {t:.3f} s: {error}",
+            ) from error
+
+
+def _table(document: Mapping[str, Any], name: str) -> Mapping[str, Any]:
+    value = document.get(name, {})
+    if not isinstance(value, Mapping):
+        raise ConfigError(name, "must be a table")
+    return value
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(where, f"must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _parse_waypoints(raw: Any) -> tuple[Waypoint, ...]:
+    if not isinstance(raw, list) or len(raw) < 2:
+        raise ConfigError("waypoints", "must be a list of at least 2 [[waypoints]] tables")
+    waypoints = []
+    for index, entry in enumerate(raw):
+        if not isinstance(entry, Mapping):
+            raise ConfigError(f"waypoints[{index}]", "must be a table with t, x, y, z")
+        unknown = set(entry) - {"t", "x", "y", "z"}
+        if unknown:
+            raise ConfigError(f"waypoints[{index}].{sorted(unknown)[0]}", "unknown field")
+        values = []
+        for key in ("t", "x", "y", "z"):
+            if key not in entry:
+                raise ConfigError(f"waypoints[{index}].{key}", "missing")
+            values.append(_number(entry[key], f"waypoints[{index}].{key}"))
+        if index and values[0] <= waypoints[-1].t:
+            raise ConfigError(
+                f"waypoints[{index}].t",
+                f"times must increase ({values[0]:g} s after {waypoints[-1].t:g} s)",
+            )
+        waypoints.append(Waypoint(*values))
+    return tuple(waypoints)
+
+
+def _parse_obstacle(raw: Any) -> EllipticCylinder:
+    if not isinstance(raw, Mapping):
+        raise ConfigError("obstacle", "must be a table")
+    known = {"x", "y", "long_diameter", "short_diameter", "height", "yaw_deg", "tool_radius", "margin"}
+    unknown = set(raw) - known
+    if unknown:
+        raise ConfigError(f"obstacle.{sorted(unknown)[0]}", f"unknown field; known: {sorted(known)}")
+    values = {}
+    for key in known:
+        if key in raw:
+            values[key] = _number(raw[key], f"obstacle.{key}")
+        elif key in {"x", "y", "long_diameter", "short_diameter", "height"}:
+            raise ConfigError(f"obstacle.{key}", "missing")
+    for key in ("tool_radius", "margin"):
+        if values.get(key, 0.0) < 0.0:
+            raise ConfigError(f"obstacle.{key}", "must not be negative")
+    return EllipticCylinder(
+        x=values["x"],
+        y=values["y"],
+        long_diameter=values["long_diameter"],
+        short_diameter=values["short_diameter"],
+        height=values["height"],
+        yaw=math.radians(values.get("yaw_deg", 0.0)),
+        inflation=values.get("tool_radius", 0.01) + values.get("margin", 0.01),
+    )

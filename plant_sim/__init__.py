@@ -1,0 +1,1 @@
+"""The plant: the arm's joint dynamics (pure model) and the node that serves it on a bus."""

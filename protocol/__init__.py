@@ -1,0 +1,1 @@
+"""What every process agrees on: the robot description, errors and (later) the wire."""

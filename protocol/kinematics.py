@@ -1,0 +1,178 @@
+"""Kinematics of the RRP SCARA arm (paper section 2, DESIGN.md section 2).
+
+Pure functions on plain floats, written with :mod:`math` rather than numpy: they run on
+every control tick (500-1000 Hz), where numpy's per-call overhead would dominate.
+
+Angles are in radians and lengths in metres. ``theta2`` is the elbow angle relative to
+link 1: ``theta2 = 0`` is the stretched arm and ``|theta2| = pi`` the folded one, the two
+singularities of the planar Jacobian (``det J = a1 a2 sin theta2``).
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+
+from protocol.errors import JointLimitError, UnreachableError
+from protocol.robot import RobotConfig
+
+# Round-off allowed on cos(theta2), z and the joint limits, so that points exactly on the
+# workspace boundary (e.g. forward() of a joint limit) stay reachable; results are clamped.
+_TOL = 1e-12
+
+DAMPING_S2_REF = 0.1
+"""``|sin theta2|`` below which :func:`joint_rates_for` damps (about 5.7 deg from a singularity)."""
+
+
+class Elbow(Enum):
+    """The inverse-kinematics branch; the value is the sign of ``theta2``.
+
+    ``DOWN``: ``theta2 >= 0``, the paper's eq. 15 (``theta1 = phi - alpha``).
+    ``UP``: ``theta2 <= 0`` (``theta1 = phi + alpha``). Both coincide at ``theta2 = 0``.
+    """
+
+    DOWN = 1
+    UP = -1
+
+
+def forward(
+    config: RobotConfig, theta1: float, theta2: float, d3: float
+) -> tuple[float, float, float]:
+    """Tool position ``(x, y, z)`` for the joint values (eq. 10)."""
+    theta12 = theta1 + theta2
+    return (
+        config.a1 * math.cos(theta1) + config.a2 * math.cos(theta12),
+        config.a1 * math.sin(theta1) + config.a2 * math.sin(theta12),
+        config.d0 - d3,
+    )
+
+
+def inverse(
+    config: RobotConfig, x: float, y: float, z: float, elbow: Elbow = Elbow.DOWN
+) -> tuple[float, float, float]:
+    """Joint values ``(theta1, theta2, d3)`` putting the tool at ``(x, y, z)`` (eq. 17).
+
+    Uses atan2 throughout, so every quadrant is right, unlike eq. 15's ``atan(y / x)``.
+    ``theta1`` is normalised to ``(-pi, pi]``.
+
+    Raises:
+        UnreachableError: the point is outside the annulus ``|a1 - a2| <= r <= a1 + a2``
+            or ``z`` is outside the stroke ``[d0 - d3_max, d0 - d3_min]``.
+        JointLimitError: this elbow branch needs ``theta1`` or ``theta2`` beyond its limits.
+    """
+    a1, a2 = config.a1, config.a2
+    if not config.z_min - _TOL <= z <= config.z_max + _TOL:
+        raise UnreachableError(
+            f"point ({x:.6g}, {y:.6g}, {z:.6g}) m is out of reach: z must lie in "
+            f"[{config.z_min:.6g}, {config.z_max:.6g}] m"
+        )
+    c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2.0 * a1 * a2)
+    if not abs(c2) <= 1.0 + _TOL:  # written so that NaN fails too
+        raise UnreachableError(
+            f"point ({x:.6g}, {y:.6g}, {z:.6g}) m is out of reach: planar radius "
+            f"{math.hypot(x, y):.6g} m must lie in [{abs(a1 - a2):.6g}, {a1 + a2:.6g}] m"
+        )
+    c2 = _clip(c2, -1.0, 1.0)
+    s2 = elbow.value * math.sqrt((1.0 - c2) * (1.0 + c2))
+    theta2 = math.atan2(s2, c2)
+    theta1 = math.remainder(math.atan2(y, x) - math.atan2(a2 * s2, a1 + a2 * c2), math.tau)
+    if theta1 == -math.pi:
+        theta1 = math.pi
+    for name, value, low, high in (
+        ("theta2", theta2, config.theta2_min, config.theta2_max),
+        ("theta1", theta1, config.theta1_min, config.theta1_max),
+    ):
+        if not low - _TOL <= value <= high + _TOL:
+            raise JointLimitError(
+                f"point ({x:.6g}, {y:.6g}, {z:.6g}) m needs {name} = "
+                f"{math.degrees(value):.3f} deg with elbow {elbow.name}, outside its limits "
+                f"[{math.degrees(low):.3f}, {math.degrees(high):.3f}] deg"
+            )
+    return (
+        _clip(theta1, config.theta1_min, config.theta1_max),
+        _clip(theta2, config.theta2_min, config.theta2_max),
+        _clip(config.d0 - z, config.d3_min, config.d3_max),
+    )
+
+
+def inverse_any(
+    config: RobotConfig, x: float, y: float, z: float, prefer: Elbow = Elbow.DOWN
+) -> tuple[float, float, float]:
+    """Like :func:`inverse`, but falls back to the other elbow if ``prefer`` hits a joint limit.
+
+    If neither branch is within limits, raises the preferred branch's JointLimitError.
+    """
+    try:
+        return inverse(config, x, y, z, prefer)
+    except JointLimitError as preferred_error:
+        try:
+            return inverse(config, x, y, z, Elbow(-prefer.value))
+        except JointLimitError:
+            raise preferred_error from None
+
+
+def jacobian_planar(
+    config: RobotConfig, theta1: float, theta2: float
+) -> tuple[float, float, float, float]:
+    """``d(x, y) / d(theta1, theta2)`` as row-major ``(j11, j12, j21, j22)``."""
+    a2s12 = config.a2 * math.sin(theta1 + theta2)
+    a2c12 = config.a2 * math.cos(theta1 + theta2)
+    return (
+        -config.a1 * math.sin(theta1) - a2s12,
+        -a2s12,
+        config.a1 * math.cos(theta1) + a2c12,
+        a2c12,
+    )
+
+
+def joint_rates_for(
+    config: RobotConfig,
+    theta1: float,
+    theta2: float,
+    vx: float,
+    vy: float,
+    damping: float = 0.01,
+) -> tuple[float, float]:
+    """Joint rates ``(theta1_dot, theta2_dot)`` giving the planar tool velocity ``(vx, vy)``.
+
+    Damped least squares, ``qdot = J^T (J J^T + lambda^2 I)^-1 v``, so the rates stay
+    bounded (``|qdot| <= |v| / (2 lambda)``) through the stretched/folded-arm singularity.
+    ``lambda^2 = damping^2 (1 - (s2 / s2_ref)^2)`` for ``|s2| < s2_ref`` (``s2 = sin theta2``,
+    ``s2_ref =`` :data:`DAMPING_S2_REF`), else 0: elsewhere this is the exact inverse, and
+    the damping fades in continuously. ``damping`` (lambda at the singularity) is in metres.
+
+    For 2x2 ``J`` with ``d = det J = a1 a2 s2``, ``J^T adj(J J^T + lambda^2 I) = d adj(J) +
+    lambda^2 J^T`` and ``det(J J^T + lambda^2 I) = d^2 + lambda^2 (|J|_F^2 + lambda^2)``;
+    the closed form below uses these, which avoids the cancellation of forming ``J J^T``.
+    """
+    j11, j12, j21, j22 = jacobian_planar(config, theta1, theta2)
+    s2 = math.sin(theta2)
+    ratio = s2 / DAMPING_S2_REF
+    lam2 = damping * damping * (1.0 - ratio * ratio) if abs(ratio) < 1.0 else 0.0
+    det_j = config.a1 * config.a2 * s2
+    denominator = det_j * det_j + lam2 * (j11 * j11 + j12 * j12 + j21 * j21 + j22 * j22 + lam2)
+    return (
+        (det_j * (j22 * vx - j12 * vy) + lam2 * (j11 * vx + j21 * vy)) / denominator,
+        (det_j * (j11 * vy - j21 * vx) + lam2 * (j12 * vx + j22 * vy)) / denominator,
+    )
+
+
+def reach_radii(config: RobotConfig) -> tuple[float, float]:
+    """Min and max planar radius reachable within the ``theta2`` limits.
+
+    The radius ``hypot(a1 + a2 cos theta2, a2 sin theta2)`` falls as ``|theta2|`` goes
+    from 0 to pi, so the extremes come from the largest and smallest allowed ``|theta2|``
+    (a limit at or beyond pi gives ``|a1 - a2|``).
+    """
+    low, high = config.theta2_min, config.theta2_max
+    least_bend = 0.0 if low <= 0.0 <= high else min(abs(low), abs(high))
+    most_bend = min(max(abs(low), abs(high)), math.pi)
+    return (_radius(config, most_bend), _radius(config, least_bend))
+
+
+def _radius(config: RobotConfig, theta2: float) -> float:
+    return math.hypot(config.a1 + config.a2 * math.cos(theta2), config.a2 * math.sin(theta2))
+
+
+def _clip(value: float, low: float, high: float) -> float:
+    return min(max(value, low), high)
