@@ -12,18 +12,12 @@ from dataclasses import dataclass
 
 from controller.behaviours import STOP, Command, avoid_obstacle, choose_side, plan_tracking
 from controller.config import ControllerConfig
-from controller.coordination import Coordinator
+from controller.coordination import AHEAD_NONE, Coordinator, smoothstep
 from controller.obstacle import EllipticCylinder, ObstacleMeasurement, measure
 from controller.planner import Trajectory
 from protocol.kinematics import forward, joint_rates_for
 from protocol.robot import RobotConfig
 
-# AO's weight k_C fades in as the obstacle comes into sensing range (from nothing at the
-# range to full at half of it) and out as the obstacle falls behind: from full to nothing
-# as the cosine of the angle between "towards p_j" and "towards the obstacle" goes from
-# AHEAD_FULL to AHEAD_NONE (smoothsteps). The TL/TR choice is released below AHEAD_NONE.
-AHEAD_FULL = 0.3
-AHEAD_NONE = -0.2
 GOAL_HANDOVER = 0.5
 """s: how long before a waypoint's time DM starts looking towards the one after it."""
 
@@ -89,9 +83,8 @@ class ControlLaw:
             (reference_velocity[0], reference_velocity[1]),
             (reference_acceleration[0], reference_acceleration[1]),
         )
-        avoiding, relevance = self._avoid(measurement, (tcp[0], tcp[1]))
+        avoiding = self._avoid(measurement, (tcp[0], tcp[1]))
         k_t, k_c = self.coordinator.weights(measurement)
-        k_c *= relevance
         total = k_t + k_c
         blended = Command(
             (k_t * tracking.v + k_c * avoiding.v) / total,
@@ -135,37 +128,27 @@ class ControlLaw:
             return (goal[0], goal[1])
         end = trajectory.times[index]
         handover = min(GOAL_HANDOVER, (end - trajectory.times[index - 1]) / 2.0)
-        share = _smoothstep((t - end + handover) / handover)
+        share = smoothstep((t - end + handover) / handover)
         following = trajectory.points[index + 1]
         return (
             goal[0] + share * (following[0] - goal[0]),
             goal[1] + share * (following[1] - goal[1]),
         )
 
-    def _avoid(
-        self, measurement: ObstacleMeasurement, position: tuple[float, float]
-    ) -> tuple[Command, float]:
-        """AO with its TL/TR choice, and how much it counts (0..1) for where the obstacle is.
-
-        The TL/TR choice is held while the obstacle is ahead. AO counts fully within half the
-        sensing range and not at all at the range; and fully while the obstacle is ahead,
-        fading to nothing as it falls behind (unless the TCP is inside the inflated section).
-        """
-        if self.obstacle is None or not measurement.present or (
-            measurement.ahead <= AHEAD_NONE and measurement.clearance > 0.0
+    def _avoid(self, measurement: ObstacleMeasurement, position: tuple[float, float]) -> Command:
+        """AO with its TL/TR choice, held while the obstacle is ahead (or the TCP inside)."""
+        if (
+            self.obstacle is None
+            or not measurement.present
+            or (measurement.ahead <= AHEAD_NONE and measurement.clearance > 0.0)
         ):
             self.side = 0
-            return STOP, 0.0
+            return STOP
         if self.side == 0:
             self.side = choose_side(measurement)
-        command = avoid_obstacle(
+        return avoid_obstacle(
             self.config, self.obstacle, measurement, self.side, self.heading, position
         )
-        range_ = self.config.sensing_range
-        relevance = _smoothstep((range_ - measurement.min_distance) / (range_ / 2.0))
-        if measurement.clearance > 0.0:
-            relevance *= _smoothstep((measurement.ahead - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
-        return command, relevance
 
     def _limit(self, wanted: tuple[float, float, float]) -> tuple[tuple[float, float, float], bool]:
         """Joint speed, then acceleration limits, each by one common scale factor.
@@ -178,7 +161,9 @@ class ControlLaw:
             if abs(rate) * scale > limit:
                 scale = limit / abs(rate)
         step_scale = 1.0
-        for rate, previous, limit in zip(wanted, self.previous_command, self._step_limits, strict=True):
+        for rate, previous, limit in zip(
+            wanted, self.previous_command, self._step_limits, strict=True
+        ):
             change = abs(rate * scale - previous)
             if change * step_scale > limit:
                 step_scale = limit / change
@@ -188,11 +173,6 @@ class ControlLaw:
             self.previous_command[2] + (wanted[2] * scale - self.previous_command[2]) * step_scale,
         )
         return command, scale < 1.0 or step_scale < 1.0
-
-
-def _smoothstep(x: float) -> float:
-    x = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
-    return x * x * (3.0 - 2.0 * x)
 
 
 def _wrap(angle: float) -> float:

@@ -13,6 +13,12 @@ from typing import Protocol
 from controller.fuzzy import FuzzyInference, RuleBase
 from controller.obstacle import ObstacleMeasurement
 
+# How far ahead an obstacle is, as the cosine of the angle between "towards p_j" and
+# "towards the obstacle": AO counts fully above AHEAD_FULL and not at all below AHEAD_NONE,
+# where the controller also forgets its TL/TR choice.
+AHEAD_FULL = 0.3
+AHEAD_NONE = -0.2
+
 
 class Mode(Enum):
     FUZZY = "fuzzy"
@@ -24,13 +30,30 @@ class Coordinator(Protocol):
 
 
 class FuzzyCoordinator:
-    """k_T and k_C from min(d_L, d_R) and beta through the rule base of Table 2."""
+    """k_T and k_C from min(d_L, d_R) and beta through the rule base of Table 2.
 
-    def __init__(self, rule_base: RuleBase | None = None) -> None:
+    Table 2 speaks of an obstacle that matters; k_C is scaled by how much it does, so that
+    AO fades in and out instead of switching: fully within half the sensing range, not at
+    all at the range; fully while the obstacle is ahead (or the TCP is inside it), fading as
+    it falls behind (smoothsteps of the distance and of ``measurement.ahead``).
+    """
+
+    def __init__(self, sensing_range: float, rule_base: RuleBase | None = None) -> None:
+        self.sensing_range = sensing_range
         self.inference = FuzzyInference(rule_base or RuleBase.load())
 
     def weights(self, measurement: ObstacleMeasurement) -> tuple[float, float]:
-        return self.inference.weights(measurement.min_distance, measurement.beta)
+        k_t, k_c = self.inference.weights(measurement.min_distance, measurement.beta)
+        return k_t, k_c * self.relevance(measurement)
+
+    def relevance(self, measurement: ObstacleMeasurement) -> float:
+        if not measurement.present:
+            return 0.0
+        half = self.sensing_range / 2.0
+        relevance = smoothstep((self.sensing_range - measurement.min_distance) / half)
+        if measurement.clearance > 0.0:
+            relevance *= smoothstep((measurement.ahead - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
+        return relevance
 
 
 class ConventionalCoordinator:
@@ -49,7 +72,13 @@ class ConventionalCoordinator:
         return (1.0, 0.0)
 
 
-def make_coordinator(mode: Mode, switch_distance: float) -> Coordinator:
+def make_coordinator(mode: Mode, switch_distance: float, sensing_range: float) -> Coordinator:
     if mode is Mode.FUZZY:
-        return FuzzyCoordinator()
+        return FuzzyCoordinator(sensing_range)
     return ConventionalCoordinator(switch_distance)
+
+
+def smoothstep(x: float) -> float:
+    """0 below 0, 1 above 1, and 3x^2 - 2x^3 between: a ramp with flat ends."""
+    x = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
+    return x * x * (3.0 - 2.0 * x)

@@ -12,12 +12,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Ellipse, Wedge  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.patches import Ellipse, Wedge
 
-from controller.simulation import SimulationRun  # noqa: E402
-from protocol.kinematics import reach_radii  # noqa: E402
+from controller.simulation import SimulationRun
+from protocol.kinematics import reach_radii
 
 MODE_COLOURS = {"fuzzy": "tab:blue", "conventional": "tab:red"}
 
@@ -46,7 +46,10 @@ def comparison_figure(runs: dict[str, SimulationRun], path: Path) -> Path:
     )
     obstacle = first.obstacle
     if obstacle is not None:
-        for inflation, style in ((0.0, {"color": "0.45"}), (obstacle.inflation, {"fill": False, "ls": "--", "color": "0.3"})):
+        for inflation, style in (
+            (0.0, {"color": "0.45"}),
+            (obstacle.inflation, {"fill": False, "ls": "--", "color": "0.3"}),
+        ):
             top.add_patch(
                 Ellipse(
                     (obstacle.x, obstacle.y),
@@ -56,23 +59,42 @@ def comparison_figure(runs: dict[str, SimulationRun], path: Path) -> Path:
                     **style,
                 )
             )
-        _cylinder(view3d, obstacle.x, obstacle.y, obstacle.long_diameter / 2, obstacle.short_diameter / 2, obstacle.yaw, obstacle.height)
+        _cylinder(
+            view3d,
+            obstacle.x,
+            obstacle.y,
+            obstacle.long_diameter / 2,
+            obstacle.short_diameter / 2,
+            obstacle.yaw,
+            obstacle.height,
+        )
     waypoints = np.array([(w.x, w.y, w.z) for w in first.waypoints])
     reference = next(iter(runs.values())).log.columns("reference_x", "reference_y", "reference_z")
     top.plot(reference[:, 0], reference[:, 1], ":", color="0.4", label="planned (PT)")
     for mode, run in runs.items():
-        colour = MODE_COLOURS.get(mode, None)
+        colour = MODE_COLOURS.get(mode)
         path_xyz = run.log.columns("x", "y", "z")
         top.plot(path_xyz[:, 0], path_xyz[:, 1], color=colour, label=f"{mode} path")
         view3d.plot(path_xyz[:, 0], path_xyz[:, 1], path_xyz[:, 2], color=colour, label=mode)
         t = run.log["t"]
         for axis, (position, command, unit) in zip(
             joint_axes,
-            (("theta1", "command_theta1", "rad"), ("theta2", "command_theta2", "rad"), ("d3", "command_d3", "m")),
+            (
+                ("theta1", "command_theta1", "rad"),
+                ("theta2", "command_theta2", "rad"),
+                ("d3", "command_d3", "m"),
+            ),
             strict=True,
         ):
             axis.plot(t, run.log[position], color=colour, label=f"{position} ({mode})")
-            axis.plot(t, run.log[command], color=colour, alpha=0.45, lw=0.8, label=f"{position} rate cmd ({mode})")
+            axis.plot(
+                t,
+                run.log[command],
+                color=colour,
+                alpha=0.45,
+                lw=0.8,
+                label=f"{position} rate cmd ({mode})",
+            )
             axis.set_title(f"{position} [{unit}] and commanded rate [{unit}/s]")
             axis.set_xlabel("t [s]")
         weights.plot(t, run.log["k_t"], color=colour, label=f"k_T ({mode})")
@@ -81,8 +103,8 @@ def comparison_figure(runs: dict[str, SimulationRun], path: Path) -> Path:
     for index, (x, y, _) in enumerate(waypoints):
         top.annotate(f"p{index + 1}", (x, y), textcoords="offset points", xytext=(6, 6))
     view3d.scatter(waypoints[:, 0], waypoints[:, 1], waypoints[:, 2], color="k")
-    span = waypoints[:, :2]
-    margin = 0.08
+    span = np.vstack([waypoints[:, :2]] + [run.log.columns("x", "y") for run in runs.values()])
+    margin = 0.05
     top.set_xlim(span[:, 0].min() - margin, span[:, 0].max() + margin)
     top.set_ylim(span[:, 1].min() - margin, span[:, 1].max() + margin)
     top.set_aspect("equal")
@@ -106,11 +128,17 @@ def comparison_figure(runs: dict[str, SimulationRun], path: Path) -> Path:
     return path
 
 
-def _cylinder(axis: object, x: float, y: float, a: float, b: float, yaw: float, height: float) -> None:
+def _cylinder(
+    axis: object, x: float, y: float, a: float, b: float, yaw: float, height: float
+) -> None:
     angles = np.linspace(0, 2 * np.pi, 48)
     heights = np.array([0.0, height])
     ring_x = x + a * np.cos(angles) * np.cos(yaw) - b * np.sin(angles) * np.sin(yaw)
     ring_y = y + a * np.cos(angles) * np.sin(yaw) + b * np.sin(angles) * np.cos(yaw)
     axis.plot_surface(  # type: ignore[attr-defined]
-        np.tile(ring_x, (2, 1)), np.tile(ring_y, (2, 1)), heights[:, None] * np.ones_like(angles), color="0.5", alpha=0.35
+        np.tile(ring_x, (2, 1)),
+        np.tile(ring_y, (2, 1)),
+        heights[:, None] * np.ones_like(angles),
+        color="0.5",
+        alpha=0.35,
     )

@@ -16,6 +16,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -106,7 +107,9 @@ class RuleBase:
 
     @classmethod
     def from_mapping(cls, document: Mapping[str, Any]) -> RuleBase:
-        inputs = {name: _parse_input(name, _field(document, "inputs", name)) for name in INPUT_NAMES}
+        inputs = {
+            name: _parse_input(name, _field(document, "inputs", name)) for name in INPUT_NAMES
+        }
         outputs = {
             name: _parse_output(name, _field(document, "outputs", name)) for name in OUTPUT_NAMES
         }
@@ -136,7 +139,7 @@ class RuleBase:
         """Every input pair must fire some rule, or the centroid would be undefined."""
         for name, fuzzy_input in self.inputs.items():
             points = sorted({p for t in fuzzy_input.terms.values() for p in (t.a, t.b, t.c, t.d)})
-            probes = points + [(p + q) / 2.0 for p, q in zip(points, points[1:], strict=False)]
+            probes = points + [(p + q) / 2.0 for p, q in pairwise(points)]
             low, high = fuzzy_input.universe
             for x in probes:
                 if low <= x <= high and max(t(x) for t in fuzzy_input.terms.values()) <= 0.0:

@@ -111,7 +111,9 @@ def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
         stops=stops,
         peak_jerk=float(np.max(jerk)) if len(jerk) else 0.0,
         rms_jerk=float(np.sqrt(np.mean(jerk**2))) if len(jerk) else 0.0,
-        max_command_jump=float(np.max(np.abs(np.diff(commands, axis=0)))) if len(commands) > 1 else 0.0,
+        max_command_jump=float(np.max(np.abs(np.diff(commands, axis=0))))
+        if len(commands) > 1
+        else 0.0,
         completion_time=completion,
         path_length=float(np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=1))),
         waypoint_miss=misses,
@@ -137,7 +139,7 @@ def format_table(results: dict[str, Measures]) -> str:
         cells = []
         for name in names:
             value = getattr(results[name], attribute)
-            if isinstance(value, bool) or isinstance(value, int):
+            if isinstance(value, (bool, int)):
                 cells.append(fmt.format(value))
             else:
                 cells.append(fmt.format(value * scale))

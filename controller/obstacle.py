@@ -113,7 +113,9 @@ class EllipticCylinder:
             return None
         centre_angle = math.atan2(sy, sx)
         spread = math.acos(1.0 / norm)
-        first = self.to_world(a * math.cos(centre_angle + spread), b * math.sin(centre_angle + spread))
+        first = self.to_world(
+            a * math.cos(centre_angle + spread), b * math.sin(centre_angle + spread)
+        )
         second = self.to_world(
             a * math.cos(centre_angle - spread), b * math.sin(centre_angle - spread)
         )
@@ -122,7 +124,9 @@ class EllipticCylinder:
             return first, second
         return second, first
 
-    def line_crossings(self, px: float, py: float, qx: float, qy: float) -> tuple[float, float] | None:
+    def line_crossings(
+        self, px: float, py: float, qx: float, qy: float
+    ) -> tuple[float, float] | None:
         """Parameters s (point = p + s (q - p)) where the line p->q crosses the section."""
         a, b = self.semi_axes
         plx, ply = self.to_local(px, py)

@@ -63,9 +63,7 @@ class Scenario:
     plant: PlantConfig = field(default_factory=PlantConfig)
 
     def trajectory(self) -> Trajectory:
-        return Trajectory(
-            [w.t for w in self.waypoints], [(w.x, w.y, w.z) for w in self.waypoints]
-        )
+        return Trajectory([w.t for w in self.waypoints], [(w.x, w.y, w.z) for w in self.waypoints])
 
     def initial_joints(self) -> tuple[float, float, float]:
         first = self.waypoints[0]
@@ -122,7 +120,9 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
     try:
         mode = Mode(mode_name)
     except ValueError as error:
-        raise ConfigError("mode", f"must be 'fuzzy' or 'conventional', got {mode_name!r}") from error
+        raise ConfigError(
+            "mode", f"must be 'fuzzy' or 'conventional', got {mode_name!r}"
+        ) from error
     elbow_name = document.get("elbow", "down")
     if elbow_name not in ("up", "down"):
         raise ConfigError("elbow", f"must be 'up' or 'down', got {elbow_name!r}")
@@ -197,7 +197,7 @@ def _number(value: Any, where: str) -> float:
 def _parse_waypoints(raw: Any) -> tuple[Waypoint, ...]:
     if not isinstance(raw, list) or len(raw) < 2:
         raise ConfigError("waypoints", "must be a list of at least 2 [[waypoints]] tables")
-    waypoints = []
+    waypoints: list[Waypoint] = []
     for index, entry in enumerate(raw):
         if not isinstance(entry, Mapping):
             raise ConfigError(f"waypoints[{index}]", "must be a table with t, x, y, z")
@@ -221,10 +221,21 @@ def _parse_waypoints(raw: Any) -> tuple[Waypoint, ...]:
 def _parse_obstacle(raw: Any) -> EllipticCylinder:
     if not isinstance(raw, Mapping):
         raise ConfigError("obstacle", "must be a table")
-    known = {"x", "y", "long_diameter", "short_diameter", "height", "yaw_deg", "tool_radius", "margin"}
+    known = {
+        "x",
+        "y",
+        "long_diameter",
+        "short_diameter",
+        "height",
+        "yaw_deg",
+        "tool_radius",
+        "margin",
+    }
     unknown = set(raw) - known
     if unknown:
-        raise ConfigError(f"obstacle.{sorted(unknown)[0]}", f"unknown field; known: {sorted(known)}")
+        raise ConfigError(
+            f"obstacle.{sorted(unknown)[0]}", f"unknown field; known: {sorted(known)}"
+        )
     values = {}
     for key in known:
         if key in raw:

@@ -29,7 +29,9 @@ def build_law(scenario: Scenario) -> ControlLaw:
         scenario.controller,
         scenario.trajectory(),
         scenario.obstacle,
-        make_coordinator(scenario.mode, scenario.controller.switch_distance),
+        make_coordinator(
+            scenario.mode, scenario.controller.switch_distance, scenario.controller.sensing_range
+        ),
     )
 
 

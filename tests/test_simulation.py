@@ -1,0 +1,112 @@
+"""The in-process simulation against the claims of the paper's Figs. 8 and 9."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.coordination import Mode
+from controller.measures import WAYPOINT_TOLERANCE, compute_measures
+from controller.runlog import RunLog
+from controller.scenario import load_scenario
+from controller.sim_cli import main as sim_main
+from controller.simulation import SimulationRun, simulate
+
+
+@pytest.fixture(scope="module")
+def reference_runs() -> dict[Mode, SimulationRun]:
+    scenario = load_scenario("reference")
+    return {mode: simulate(scenario, mode) for mode in Mode}
+
+
+def test_fuzzy_reference_is_collision_free_non_stop_and_passes_every_waypoint(
+    reference_runs: dict[Mode, SimulationRun],
+) -> None:
+    measures = reference_runs[Mode.FUZZY].measures
+    assert measures.collision_free
+    assert measures.min_clearance > 0.0
+    assert measures.stops == 0
+    assert measures.max_waypoint_miss <= WAYPOINT_TOLERANCE
+    assert np.isfinite(measures.completion_time)
+
+
+def test_conventional_reference_is_collision_free_but_switches_harshly(
+    reference_runs: dict[Mode, SimulationRun],
+) -> None:
+    fuzzy = reference_runs[Mode.FUZZY].measures
+    conventional = reference_runs[Mode.CONVENTIONAL].measures
+    assert conventional.collision_free
+    assert conventional.peak_jerk > 2.0 * fuzzy.peak_jerk
+    assert conventional.max_command_jump > 1.5 * fuzzy.max_command_jump
+    # The hard switch really happens: k_C is only ever 0 or 1, and it flips.
+    k_c = reference_runs[Mode.CONVENTIONAL].log["k_c"]
+    assert set(np.unique(k_c)) == {0.0, 1.0}
+    assert np.count_nonzero(np.diff(k_c)) >= 2
+
+
+def test_fuzzy_weights_change_gradually(reference_runs: dict[Mode, SimulationRun]) -> None:
+    log = reference_runs[Mode.FUZZY].log
+    assert log["k_c"].max() > 0.9  # AO takes over near the obstacle ...
+    assert log["k_t"].min() < 0.5  # ... while PT steps back,
+    assert np.abs(np.diff(log["k_c"])).max() < 0.05  # never in one jump.
+
+
+def test_obstacle_really_was_in_the_way(reference_runs: dict[Mode, SimulationRun]) -> None:
+    log = reference_runs[Mode.FUZZY].log
+    scenario = reference_runs[Mode.FUZZY].scenario
+    assert scenario.obstacle is not None
+    planned = log.columns("reference_x", "reference_y")
+    inside = [scenario.obstacle.contains(x, y) for x, y in planned]
+    assert any(inside), "the planned path should cross the obstacle"
+    assert log["blocked"].any()
+
+
+def test_same_scenario_same_mode_is_bit_identical() -> None:
+    scenario = load_scenario("reference")
+    for mode in Mode:
+        first, second = simulate(scenario, mode), simulate(scenario, mode)
+        assert first.log.data.tobytes() == second.log.data.tobytes()
+        assert first.measures == second.measures
+
+
+@pytest.mark.parametrize("name", ["pass_left", "long_wall", "over_the_top", "no_obstacle"])
+def test_other_scenarios_are_collision_free_without_stops(name: str) -> None:
+    run = simulate(load_scenario(name), Mode.FUZZY)
+    assert run.measures.collision_free
+    assert run.measures.stops == 0
+
+
+def test_obstacle_below_the_path_leaves_the_motion_unchanged() -> None:
+    over = simulate(load_scenario("over_the_top"), Mode.FUZZY)
+    free = simulate(load_scenario("no_obstacle"), Mode.FUZZY)
+    assert np.array_equal(over.log.columns("x", "y", "z"), free.log.columns("x", "y", "z"))
+    assert over.log["k_c"].max() == 0.0
+
+
+def test_measures_count_stops_and_collisions_from_the_log() -> None:
+    run = simulate(load_scenario("no_obstacle"), Mode.FUZZY)
+    data = run.log.data.copy()
+    log = RunLog.from_array(data)
+    assert compute_measures(run.scenario, log) == run.measures
+    # Freeze the arm for 10 ticks mid-run: that is one stop.
+    middle = len(data) // 3
+    for name in ("theta1_rate", "theta2_rate", "d3_rate"):
+        log[name][middle : middle + 10] = 0.0
+    assert compute_measures(run.scenario, log).stops == 1
+    log["clearance"][middle] = -0.001
+    assert not compute_measures(run.scenario, log).collision_free
+
+
+def test_command_line_writes_table_figure_and_json(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    assert sim_main(["reference", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "| collision-free | True | True |" in printed
+    assert (tmp_path / "reference.png").stat().st_size > 10_000
+    assert (tmp_path / "reference_measures.json").exists()
+
+
+def test_command_line_rejects_a_bad_scenario(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[waypoints]]\nt = 0\nx = 0.3\ny = 0\nz = 0.2\n")
+    assert sim_main([str(bad), "--out", str(tmp_path)]) == 2
+    assert "waypoints" in capsys.readouterr().err
