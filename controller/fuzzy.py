@@ -159,8 +159,8 @@ class FuzzyInference:
     def __init__(self, rule_base: RuleBase) -> None:
         self.rule_base = rule_base
         distance, beta = rule_base.inputs["min_distance"], rule_base.inputs["beta"]
-        self._distance_terms = tuple(distance.terms.values())
-        self._beta_terms = tuple(beta.terms.values())
+        self._distance_points = tuple((t.a, t.b, t.c, t.d) for t in distance.terms.values())
+        self._beta_points = tuple((t.a, t.b, t.c, t.d) for t in beta.terms.values())
         self._distance_range = distance.universe
         self._beta_range = beta.universe
         distance_index = {name: i for i, name in enumerate(distance.terms)}
@@ -184,12 +184,15 @@ class FuzzyInference:
         min_distance = low if min_distance < low else high if min_distance > high else min_distance
         low, high = self._beta_range
         beta = low if beta < low else high if beta > high else beta
-        mu_distance = [term(min_distance) for term in self._distance_terms]
-        mu_beta = [term(beta) for term in self._beta_terms]
+        mu_distance = [_membership(min_distance, *term) for term in self._distance_points]
+        mu_beta = [_membership(beta, *term) for term in self._beta_points]
         fired_t = [0.0, 0.0, 0.0]
         fired_c = [0.0, 0.0, 0.0]
         for distance_i, beta_i, term_t, term_c in self._rules:
-            strength = min(mu_distance[distance_i], mu_beta[beta_i])
+            strength = mu_distance[distance_i]
+            other = mu_beta[beta_i]
+            if other < strength:
+                strength = other
             if strength > fired_t[term_t]:
                 fired_t[term_t] = strength
             if strength > fired_c[term_c]:
@@ -198,6 +201,17 @@ class FuzzyInference:
             centroid_of_partition(self._peaks_t, fired_t),
             centroid_of_partition(self._peaks_c, fired_c),
         )
+
+
+def _membership(x: float, a: float, b: float, c: float, d: float) -> float:
+    """:class:`Trapezoid` without the method call, for the per-tick path."""
+    if x < a or x > d:
+        return 0.0
+    if x < b:
+        return (x - a) / (b - a)
+    if x <= c:
+        return 1.0
+    return (d - x) / (d - c)
 
 
 def centroid_of_partition(peaks: Sequence[float], fired: Sequence[float]) -> float:
@@ -211,44 +225,39 @@ def centroid_of_partition(peaks: Sequence[float], fired: Sequence[float]) -> flo
     w_small, w_medium, w_big = fired
     low_width = medium - small
     high_width = big - medium
-    pieces = (
-        (small - low_width, low_width, _rising_only(w_small)),
-        (small, low_width, _falling_then_rising(w_small, w_medium)),
-        (medium, high_width, _falling_then_rising(w_medium, w_big)),
-        (big, high_width, _falling_only(w_big)),
-    )
-    area = 0.0
-    moment = 0.0
-    for start, width, (piece_area, piece_moment) in pieces:
+    area = moment = 0.0
+    # Left tail: min(w_small, u); right tail: min(w_big, 1 - u).
+    piece_area, piece_moment = _rising(w_small, 1.0)
+    area += low_width * piece_area
+    moment += low_width * ((small - low_width) * piece_area + low_width * piece_moment)
+    piece_area, piece_moment = _rising(w_big, 1.0)
+    area += high_width * piece_area
+    moment += high_width * (big * piece_area + high_width * (piece_area - piece_moment))
+    for start, width, falling, rising in (
+        (small, low_width, w_small, w_medium),
+        (medium, high_width, w_medium, w_big),
+    ):
+        piece_area, piece_moment = _falling_then_rising(falling, rising)
         area += width * piece_area
         moment += width * (start * piece_area + width * piece_moment)
     return moment / area
 
 
-def _rising_integrals(level: float, upto: float) -> tuple[float, float]:
+def _rising(level: float, upto: float) -> tuple[float, float]:
     """Integrals of min(level, u) and u*min(level, u) over [0, upto], upto in [0, 1]."""
     if upto <= level:
-        return upto * upto / 2.0, upto**3 / 3.0
+        return upto * upto * 0.5, upto * upto * upto / 3.0
     return (
-        level * level / 2.0 + level * (upto - level),
-        level**3 / 3.0 + level * (upto * upto - level * level) / 2.0,
+        level * (upto - level * 0.5),
+        level * level * level / 3.0 + level * (upto * upto - level * level) * 0.5,
     )
-
-
-def _rising_only(level: float) -> tuple[float, float]:
-    return _rising_integrals(level, 1.0)
-
-
-def _falling_only(level: float) -> tuple[float, float]:
-    # min(level, 1 - u) mirrors the rising edge: the u-moment is area - mirrored moment.
-    area, mirrored = _rising_integrals(level, 1.0)
-    return area, area - mirrored
 
 
 def _falling_then_rising(falling: float, rising: float) -> tuple[float, float]:
     """Integrals of max(min(falling, 1 - u), min(rising, u)) over [0, 1].
 
     The falling part wins on [0, c] and the rising part on [c, 1], with c where they cross.
+    With v = 1 - u the falling part is min(falling, v) over [1 - c, 1], and u = 1 - v.
     """
     if falling <= rising and falling <= 0.5:
         crossing = falling
@@ -256,14 +265,12 @@ def _falling_then_rising(falling: float, rising: float) -> tuple[float, float]:
         crossing = 1.0 - rising
     else:
         crossing = 0.5
-    # Falling part on [0, c]: with v = 1 - u it is min(falling, v) over [1 - c, 1].
-    full_area, full_moment = _rising_integrals(falling, 1.0)
-    part_area, part_moment = _rising_integrals(falling, 1.0 - crossing)
+    full_area, full_moment = _rising(falling, 1.0)
+    part_area, part_moment = _rising(falling, 1.0 - crossing)
     falling_area = full_area - part_area
     falling_moment = falling_area - (full_moment - part_moment)
-    # Rising part on [c, 1].
-    full_area, full_moment = _rising_integrals(rising, 1.0)
-    part_area, part_moment = _rising_integrals(rising, crossing)
+    full_area, full_moment = _rising(rising, 1.0)
+    part_area, part_moment = _rising(rising, crossing)
     return (
         falling_area + full_area - part_area,
         falling_moment + full_moment - part_moment,

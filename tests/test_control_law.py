@@ -1,0 +1,84 @@
+"""The control step: behaviours, the blend of eq. 30 and the joint limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.behaviours import TURN_LEFT, TURN_RIGHT, avoid_obstacle, plan_tracking
+from controller.config import ControllerConfig
+from controller.coordination import ConventionalCoordinator, Mode
+from controller.obstacle import EllipticCylinder, measure
+from controller.scenario import load_scenario
+from controller.simulation import simulate
+from protocol.errors import ConfigError
+
+CONFIG = ControllerConfig()
+
+
+def test_tracking_on_the_plan_follows_it() -> None:
+    command = plan_tracking(CONFIG, 0.0, (0.3, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    assert command.v == pytest.approx(0.2)
+    assert command.omega == pytest.approx(0.0)
+
+
+def test_tracking_ahead_of_the_plan_waits_instead_of_turning_round() -> None:
+    command = plan_tracking(CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    assert command.v == 0.0
+    assert command.omega == pytest.approx(0.0)
+
+
+def test_tracking_beside_the_plan_steers_back() -> None:
+    left_of_plan = plan_tracking(CONFIG, 0.0, (0.3, 0.02), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    assert left_of_plan.omega < 0.0  # turn right, back onto the path
+    assert 0.0 < left_of_plan.v <= CONFIG.speed_max
+
+
+@pytest.mark.parametrize("side", [TURN_LEFT, TURN_RIGHT])
+def test_avoiding_turns_to_the_chosen_side_and_settles_on_the_edge(side: int) -> None:
+    obstacle = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02)
+    tcp = (0.3, 0.0, 0.2)
+    measurement = measure(obstacle, tcp, (0.7, 0.0), CONFIG.sensing_range)
+    head_on = avoid_obstacle(CONFIG, obstacle, measurement, side, 0.0, tcp[:2])
+    assert math.copysign(1.0, head_on.omega) == side
+    assert head_on.v > 0.0
+    # Heading straight at the edge of the obstacle grown by the pass margin: no more turning.
+    edges = obstacle.grown(CONFIG.ao_pass_margin).tangent_points(*tcp[:2])
+    assert edges is not None
+    edge = edges[0] if side == TURN_LEFT else edges[1]
+    at_edge = math.atan2(edge[1] - tcp[1], edge[0] - tcp[0])
+    settled = avoid_obstacle(CONFIG, obstacle, measurement, side, at_edge, tcp[:2])
+    assert settled.omega == pytest.approx(0.0, abs=1e-9)
+
+
+def test_conventional_switch_is_all_or_nothing() -> None:
+    obstacle = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02)
+    coordinator = ConventionalCoordinator(switch_distance=0.05)
+    far = measure(obstacle, (0.3, 0.0, 0.2), (0.7, 0.0), 0.5)
+    near = measure(obstacle, (0.44, 0.0, 0.2), (0.7, 0.0), 0.5)
+    behind = measure(obstacle, (0.56, 0.0, 0.2), (0.7, 0.0), 0.5)
+    assert coordinator.weights(far) == (1.0, 0.0)
+    assert coordinator.weights(near) == (0.0, 1.0)
+    assert coordinator.weights(behind) == (1.0, 0.0)
+
+
+@pytest.mark.parametrize("mode", list(Mode))
+def test_commands_respect_joint_speed_and_acceleration_limits(mode: Mode) -> None:
+    run = simulate(load_scenario("reference"), mode)
+    robot, period = run.scenario.robot, run.scenario.controller.period
+    commands = run.log.columns("command_theta1", "command_theta2", "command_d3")
+    speed = np.array(robot.speed_limits)
+    step = np.array(robot.accel_limits) * period
+    assert np.all(np.abs(commands) <= speed * (1 + 1e-12))
+    assert np.all(np.abs(np.diff(commands, axis=0)) <= step * (1 + 1e-9))
+
+
+def test_controller_config_names_bad_values() -> None:
+    with pytest.raises(ConfigError) as error:
+        ControllerConfig(rate_hz=5000.0)
+    assert error.value.field == "controller.rate_hz"
+    with pytest.raises(ConfigError) as error:
+        ControllerConfig(heading_gain=math.nan)
+    assert error.value.field == "controller.heading_gain"
