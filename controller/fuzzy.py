@@ -55,7 +55,11 @@ class FuzzyInput:
 
 @dataclass(frozen=True, slots=True)
 class FuzzyOutput:
-    """Three triangles peaking at small < medium < big, each reaching its neighbours' peaks."""
+    """Three triangles peaking at small < medium < big, each reaching its neighbours' peaks.
+
+    The outer two are mirrored about their peaks; with evenly spaced peaks the middle one is
+    symmetric too, so that any term fired alone defuzzifies to exactly its peak.
+    """
 
     name: str
     peaks: tuple[float, float, float]
@@ -138,9 +142,10 @@ class RuleBase:
     def _check_coverage(self) -> None:
         """Every input pair must fire some rule, or the centroid would be undefined."""
         for name, fuzzy_input in self.inputs.items():
-            points = sorted({p for t in fuzzy_input.terms.values() for p in (t.a, t.b, t.c, t.d)})
-            probes = points + [(p + q) / 2.0 for p, q in pairwise(points)]
             low, high = fuzzy_input.universe
+            corners = {p for t in fuzzy_input.terms.values() for p in (t.a, t.b, t.c, t.d)}
+            points = sorted(corners | {low, high})
+            probes = points + [(p + q) / 2.0 for p, q in pairwise(points)]
             for x in probes:
                 if low <= x <= high and max(t(x) for t in fuzzy_input.terms.values()) <= 0.0:
                     raise ConfigError(f"inputs.{name}.terms", f"no term covers {x:g}")
@@ -320,4 +325,6 @@ def _parse_output(name: str, raw: Mapping[str, Any]) -> FuzzyOutput:
     small, medium, big = _number_list(f"outputs.{name}.peaks", values, 3)
     if not small < medium < big:
         raise ConfigError(f"outputs.{name}.peaks", "must satisfy small < medium < big")
+    if not math.isclose(medium - small, big - medium, rel_tol=1e-9):
+        raise ConfigError(f"outputs.{name}.peaks", "must be evenly spaced (medium halfway)")
     return FuzzyOutput(name, (small, medium, big))

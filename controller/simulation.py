@@ -1,7 +1,8 @@
 """The in-process simulation: control law and plant model stepped in one fixed-step loop.
 
 Deterministic: the same scenario and mode give bit-identical logs, since nothing here reads a
-clock or draws a random number.
+clock or draws a random number. The joint state and the command pass through the CAN codec
+on their way, so the values are quantised exactly as they are between the processes.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from controller.measures import Measures, compute_measures
 from controller.runlog import RunLog, row_of
 from controller.scenario import Scenario
 from plant_sim.model import PlantModel
+from protocol.messages import on_the_wire_command, on_the_wire_state
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,8 +49,8 @@ def simulate(scenario: Scenario, mode: Mode | None = None) -> SimulationRun:
     log = RunLog(ticks)
     for tick in range(ticks):
         t = start + tick * period
-        position, velocity = plant.position, plant.velocity
+        position, velocity = on_the_wire_state(plant.position, plant.velocity)
         output = law.step(t, position)
         log.append(row_of(t, position, velocity, output))
-        plant.advance(output.command, period)
+        plant.advance(on_the_wire_command(output.command), period)
     return SimulationRun(scenario, log, compute_measures(scenario, log))

@@ -25,3 +25,21 @@ class UnreachableError(KinematicsError):
 
 class JointLimitError(KinematicsError):
     """The point is reachable geometrically, but only outside the joint limits."""
+
+
+class WireError(ScaraError):
+    """A CAN frame cannot be built or read as the DBC defines it."""
+
+
+class EncodeError(WireError, ValueError):
+    """A value does not fit its signal (out of the DBC range, or not finite)."""
+
+
+class DecodeError(WireError):
+    """A received frame is not a valid frame of the DBC: unknown ID, wrong length, bad CRC,
+    or a value outside its signal's range. Such a frame is counted and never acted on."""
+
+    def __init__(self, frame_id: int, reason: str) -> None:
+        super().__init__(f"frame 0x{frame_id:03X}: {reason}")
+        self.frame_id = frame_id
+        self.reason = reason

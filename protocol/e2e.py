@@ -1,0 +1,84 @@
+"""The receiving side of the E2E header: alive counters checked per frame ID.
+
+The CRC is checked by the codec (a corrupt frame raises :class:`DecodeError`); this module
+classifies the counters of the frames that decoded, in the spirit of AUTOSAR E2E profile
+1's state machine, and counts what it saw. Only a frame classified ``OK`` or ``LOST`` (newer,
+with some frames missed before it) may be acted on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+from protocol.codec import COUNTER_MODULO
+
+MAX_FORWARD_JUMP = COUNTER_MODULO // 2
+"""A counter more than this far ahead is taken as an old frame arriving late (stale)."""
+
+
+class Check(Enum):
+    FIRST = "first"
+    OK = "ok"
+    LOST = "lost"
+    REPEATED = "repeated"
+    STALE = "stale"
+
+    @property
+    def usable(self) -> bool:
+        return self in (Check.FIRST, Check.OK, Check.LOST)
+
+
+@dataclass(slots=True)
+class E2ECounts:
+    """What a receiver has seen, for status frames and the end-of-run report."""
+
+    ok: int = 0
+    lost: int = 0
+    repeated: int = 0
+    stale: int = 0
+    corrupt: int = 0
+
+    @property
+    def bad(self) -> int:
+        """Frames received but not acted on."""
+        return self.repeated + self.stale + self.corrupt
+
+
+@dataclass(slots=True)
+class E2EMonitor:
+    """Alive-counter checks for every frame ID a node receives."""
+
+    counts: E2ECounts = field(default_factory=E2ECounts)
+    _last: dict[int, int] = field(default_factory=dict)
+
+    def check(self, frame_id: int, counter: int) -> Check:
+        last = self._last.get(frame_id)
+        if last is None:
+            self._last[frame_id] = counter
+            self.counts.ok += 1
+            return Check.FIRST
+        step = (counter - last) % COUNTER_MODULO
+        if step == 0:
+            self.counts.repeated += 1
+            return Check.REPEATED
+        if step > MAX_FORWARD_JUMP:
+            self.counts.stale += 1
+            return Check.STALE
+        self._last[frame_id] = counter
+        self.counts.ok += 1
+        if step > 1:
+            self.counts.lost += step - 1
+            return Check.LOST
+        return Check.OK
+
+    def corrupt(self) -> None:
+        """Count a frame that failed to decode (bad CRC, length, ID or range)."""
+        self.counts.corrupt += 1
+
+    def forget(self, frame_id: int | None = None) -> None:
+        """Start over for one ID (or all), e.g. when a restarted peer begins again."""
+        if frame_id is None:
+            self._last.clear()
+        else:
+            self._last.pop(frame_id, None)
