@@ -55,6 +55,7 @@ class ControlLaw:
         self.config = config
         self.trajectory = trajectory
         self.obstacle = obstacle
+        self._aim = obstacle.grown(config.ao_pass_margin) if obstacle is not None else None
         self.coordinator = coordinator
         self.period = config.period
         self._speed_limits = robot.speed_limits
@@ -147,7 +148,7 @@ class ControlLaw:
         if self.side == 0:
             self.side = choose_side(measurement)
         return avoid_obstacle(
-            self.config, self.obstacle, measurement, self.side, self.heading, position
+            self.config, self._aim, measurement, self.side, self.heading, position
         )
 
     def _limit(self, wanted: tuple[float, float, float]) -> tuple[tuple[float, float, float], bool]:

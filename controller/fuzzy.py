@@ -185,6 +185,8 @@ class FuzzyInference:
 
     def weights(self, min_distance: float, beta: float) -> tuple[float, float]:
         """k_T and k_C for one pair of inputs (clamped to their universes)."""
+        if min_distance != min_distance or beta != beta:
+            raise ValueError(f"fuzzy inputs must not be NaN: ({min_distance}, {beta})")
         low, high = self._distance_range
         min_distance = low if min_distance < low else high if min_distance > high else min_distance
         low, high = self._beta_range

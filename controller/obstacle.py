@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from protocol.errors import ConfigError
 
 Point = tuple[float, float]
+AXIS_SNAP = 1e-12
 
 
 @dataclass(frozen=True, slots=True)
@@ -232,6 +233,12 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
         distance, (cy, cx) = _ellipse_distance(b, a, v, u)
         return distance, (cx, cy)
     inside = (u / a) ** 2 + (v / b) ** 2 < 1.0
+    # A coordinate within rounding of an axis is taken as on it (an error of at most 1e-12 of
+    # the axis), where the closed forms below hold and Newton's denominators could vanish.
+    if v <= AXIS_SNAP * b:
+        v = 0.0
+    if u <= AXIS_SNAP * a:
+        u = 0.0
     if v == 0.0:
         if u < (a * a - b * b) / a:
             x0 = a * a * u / (a * a - b * b)
@@ -241,7 +248,9 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
     if u == 0.0:
         return v - b, (0.0, b)
     a2, b2 = a * a, b * b
-    t = -b2 + b * v
+    # Both starts are below the root (either term alone is 1 there); the larger one keeps
+    # t + b^2 away from 0 for points a hair off the long axis.
+    t = max(-b2 + b * v, -a2 + a * u)
     for _ in range(64):
         ratio_u = a * u / (t + a2)
         ratio_v = b * v / (t + b2)

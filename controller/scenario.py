@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,8 @@ from protocol.kinematics import Elbow, inverse
 from protocol.robot import RobotConfig
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+DEFAULT_TOOL_RADIUS = 0.01
+DEFAULT_MARGIN = 0.01
 PATH_CHECK_STEP = 0.005  # s between the planned points checked against the workspace
 
 _TOP_LEVEL = {
@@ -61,9 +63,16 @@ class Scenario:
     robot: RobotConfig = field(default_factory=RobotConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
     plant: PlantConfig = field(default_factory=PlantConfig)
+    tool_radius: float = 0.01
 
     def trajectory(self) -> Trajectory:
         return Trajectory([w.t for w in self.waypoints], [(w.x, w.y, w.z) for w in self.waypoints])
+
+    def touched_obstacle(self) -> EllipticCylinder | None:
+        """The obstacle grown by the tool radius only: what the tool really collides with."""
+        if self.obstacle is None:
+            return None
+        return self.obstacle.grown(self.tool_radius - self.obstacle.inflation)
 
     def initial_joints(self) -> tuple[float, float, float]:
         first = self.waypoints[0]
@@ -75,18 +84,11 @@ class Scenario:
         return self.waypoints[-1].t - self.waypoints[0].t + self.settle_time
 
     def with_mode(self, mode: Mode) -> Scenario:
-        return Scenario(
-            self.name,
-            self.waypoints,
-            self.obstacle,
-            mode,
-            self.elbow,
-            self.settle_time,
-            self.description,
-            self.robot,
-            self.controller,
-            self.plant,
-        )
+        return replace(self, mode=mode)
+
+    def with_rate(self, rate_hz: float) -> Scenario:
+        """The same scenario with another control rate (the plant steps at the same rate)."""
+        return replace(self, controller=replace(self.controller, rate_hz=rate_hz))
 
 
 def load_scenario(source: str | Path) -> Scenario:
@@ -130,7 +132,11 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
     settle_time = _number(document.get("settle_time", 1.0), "settle_time")
     if settle_time < 0.0:
         raise ConfigError("settle_time", "must not be negative")
-    obstacle = _parse_obstacle(document["obstacle"]) if "obstacle" in document else None
+    obstacle_table = _table(document, "obstacle")
+    obstacle = _parse_obstacle(obstacle_table) if "obstacle" in document else None
+    tool_radius = _number(
+        obstacle_table.get("tool_radius", DEFAULT_TOOL_RADIUS), "obstacle.tool_radius"
+    )
     waypoints = _parse_waypoints(document.get("waypoints"))
     scenario = Scenario(
         name=str(document.get("name", default_name)),
@@ -143,6 +149,7 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
         robot=robot,
         controller=controller,
         plant=plant,
+        tool_radius=tool_radius,
     )
     check_scenario(scenario)
     return scenario
@@ -252,5 +259,6 @@ def _parse_obstacle(raw: Any) -> EllipticCylinder:
         short_diameter=values["short_diameter"],
         height=values["height"],
         yaw=math.radians(values.get("yaw_deg", 0.0)),
-        inflation=values.get("tool_radius", 0.01) + values.get("margin", 0.01),
+        inflation=values.get("tool_radius", DEFAULT_TOOL_RADIUS)
+        + values.get("margin", DEFAULT_MARGIN),
     )

@@ -46,7 +46,7 @@ def _crc_table() -> tuple[int, ...]:
 _CRC_TABLE = _crc_table()
 
 
-def crc8(frame_id: int, body: bytes | bytearray) -> int:
+def crc8(frame_id: int, body: bytes | bytearray | memoryview) -> int:
     """CRC over the frame ID (2 bytes, little-endian) and bytes 1.. of the frame."""
     table = _CRC_TABLE
     crc = table[CRC_INIT ^ (frame_id & 0xFF)]
@@ -124,7 +124,9 @@ class MessageCodec:
         position = 16
         for spec in rest:
             if spec.start != position or (spec.length, spec.signed) not in _FORMATS:
-                raise ValueError(f"{self.name}.{spec.name}: not a byte-aligned 8/16/24/32-bit field")
+                raise ValueError(
+                    f"{self.name}.{spec.name}: not a byte-aligned 8/16/24/32-bit field"
+                )
             fmt += _FORMATS[(spec.length, spec.signed)]
             position += spec.length
         if position != self.length * 8:
@@ -133,27 +135,41 @@ class MessageCodec:
         self.fields: tuple[SignalSpec, ...] = tuple(rest)
         self.signals: tuple[SignalSpec, ...] = ((self.aux,) if self.aux else ()) + self.fields
         self.signal_names = tuple(spec.name for spec in self.signals)
+        for spec in self.signals:
+            low, high = spec.raw_range
+            bits = spec.length
+            lowest, highest = (
+                (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if spec.signed else (0, (1 << bits) - 1)
+            )
+            if low < lowest or high > highest:
+                raise ValueError(f"{self.name}.{spec.name}: DBC range does not fit {bits} bits")
         self._plan = tuple(
             (spec.scale, spec.offset, *spec.raw_range, spec.length == 24, spec.integer)
             for spec in self.signals
         )
+        self._limits = tuple((spec.minimum, spec.maximum) for spec in self.signals)
 
     def encode(self, values: Sequence[float], counter: int) -> bytes:
         """The frame's bytes for ``values`` (physical units) and alive ``counter``."""
         if len(values) != len(self._plan):
             raise EncodeError(f"{self.name}: expected {len(self._plan)} values {self.signal_names}")
+        if not 0 <= counter < COUNTER_MODULO:
+            raise EncodeError(f"{self.name}.Counter: {counter} outside [0, {COUNTER_MODULO - 1}]")
         raws: list[int] = []
-        for index, (value, (scale, offset, low, high, wide, _)) in enumerate(
-            zip(values, self._plan, strict=True)
-        ):
-            if value != value or value in (math.inf, -math.inf):
-                raise EncodeError(f"{self.name}.{self.signal_names[index]}: {value} is not finite")
+        for index, (
+            value,
+            (scale, offset, low, high, wide, integer),
+            (minimum, maximum),
+        ) in enumerate(zip(values, self._plan, self._limits, strict=True)):
+            if not minimum <= value <= maximum:  # also false for NaN
+                name = f"{self.name}.{self.signal_names[index]}"
+                raise EncodeError(f"{name}: {value!r} outside [{minimum:g}, {maximum:g}]")
             raw = round((value - offset) / scale)
-            if raw < low or raw > high:
+            if integer and raw != value:
                 raise EncodeError(
-                    f"{self.name}.{self.signal_names[index]}: {value:g} outside "
-                    f"[{low * scale + offset:g}, {high * scale + offset:g}]"
+                    f"{self.name}.{self.signal_names[index]}: {value!r} is not an integer"
                 )
+            raw = low if raw < low else high if raw > high else raw
             if wide:
                 raws.append(raw & 0xFFFF)
                 raws.append(raw >> 16)
@@ -200,14 +216,16 @@ class Wire:
     """Every message of the DBC, by name and by frame ID."""
 
     def __init__(self, dbc_text: str = DBC_TEXT) -> None:
-        database = cantools.database.load_string(dbc_text, database_format="dbc")
+        database: Any = cantools.database.load_string(dbc_text, database_format="dbc")
         self.messages = {m.name: MessageCodec(m) for m in database.messages}
         self.by_id = {codec.frame_id: codec for codec in self.messages.values()}
 
     def __getitem__(self, name: str) -> MessageCodec:
         return self.messages[name]
 
-    def decode(self, frame_id: int, data: bytes | bytearray) -> tuple[MessageCodec, int, tuple[float, ...]]:
+    def decode(
+        self, frame_id: int, data: bytes | bytearray
+    ) -> tuple[MessageCodec, int, tuple[float, ...]]:
         """Decode a frame of any message; :class:`DecodeError` for an unknown ID too."""
         codec = self.by_id.get(frame_id)
         if codec is None:

@@ -41,15 +41,16 @@ def test_avoiding_turns_to_the_chosen_side_and_settles_on_the_edge(side: int) ->
     obstacle = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02)
     tcp = (0.3, 0.0, 0.2)
     measurement = measure(obstacle, tcp, (0.7, 0.0), CONFIG.sensing_range)
-    head_on = avoid_obstacle(CONFIG, obstacle, measurement, side, 0.0, tcp[:2])
+    aim = obstacle.grown(CONFIG.ao_pass_margin)
+    head_on = avoid_obstacle(CONFIG, aim, measurement, side, 0.0, tcp[:2])
     assert math.copysign(1.0, head_on.omega) == side
     assert head_on.v > 0.0
     # Heading straight at the edge of the obstacle grown by the pass margin: no more turning.
-    edges = obstacle.grown(CONFIG.ao_pass_margin).tangent_points(*tcp[:2])
+    edges = aim.tangent_points(*tcp[:2])
     assert edges is not None
     edge = edges[0] if side == TURN_LEFT else edges[1]
     at_edge = math.atan2(edge[1] - tcp[1], edge[0] - tcp[0])
-    settled = avoid_obstacle(CONFIG, obstacle, measurement, side, at_edge, tcp[:2])
+    settled = avoid_obstacle(CONFIG, aim, measurement, side, at_edge, tcp[:2])
     assert settled.omega == pytest.approx(0.0, abs=1e-9)
 
 

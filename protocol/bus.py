@@ -1,0 +1,114 @@
+"""Opening the CAN bus a node talks on, with python-can's own configuration.
+
+The transport is python-can's ``interface`` + ``channel``: given on the command line, else
+taken from python-can's environment variables or config file (``CAN_INTERFACE``,
+``CAN_CHANNEL``, ``~/.canrc``), else the embedded default: ``socketcan`` on ``vcan0`` where
+that device exists, otherwise the CAN-over-Zenoh interface on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import can
+
+DEFAULT_ZENOH_CHANNEL = "scara"
+
+
+def default_transport() -> tuple[str, str]:
+    """socketcan/vcan0 where the device exists, else zenoh on loopback."""
+    if Path("/sys/class/net/vcan0").exists():
+        return "socketcan", "vcan0"
+    return "zenoh", DEFAULT_ZENOH_CHANNEL
+
+
+def resolve_transport(interface: str | None, channel: str | None) -> tuple[str, str]:
+    """Command line first, then python-can's configuration, then the default."""
+    if interface is None:
+        configured: dict[str, Any]
+        try:
+            configured = dict(can.util.load_config())
+        except can.CanInterfaceNotImplementedError:  # python-can has no interface configured
+            configured = {}
+        interface = configured.get("interface")
+        channel = channel or configured.get("channel")
+    if interface is None:
+        interface, default_channel = default_transport()
+        channel = channel or default_channel
+    if channel is None:
+        channel = "vcan0" if interface == "socketcan" else DEFAULT_ZENOH_CHANNEL
+    return interface, str(channel)
+
+
+def parse_options(pairs: Sequence[str]) -> dict[str, Any]:
+    """``key=value`` pairs into bus keyword arguments (ints and floats converted)."""
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, separator, text = pair.partition("=")
+        if not separator or not key:
+            raise argparse.ArgumentTypeError(f"bus option {pair!r} is not key=value")
+        value: Any = {"true": True, "false": False}.get(text.lower(), text)
+        for kind in (int, float):
+            try:
+                value = kind(text)
+                break
+            except ValueError:
+                continue
+        options[key] = value
+    return options
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """The transport flags every node and tool shares."""
+    group = parser.add_argument_group("CAN transport (python-can interface + channel)")
+    group.add_argument(
+        "--interface",
+        "-i",
+        default=os.environ.get("SCARA_CAN_INTERFACE"),
+        help="python-can interface: zenoh, socketcan, udp_multicast, virtual ... "
+        "(default: python-can's config, else socketcan on vcan0 if present, else zenoh)",
+    )
+    group.add_argument(
+        "--channel", "-c", default=os.environ.get("SCARA_CAN_CHANNEL"), help="channel name"
+    )
+    group.add_argument(
+        "--bus-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="extra keyword for the bus, e.g. port=17447 (repeatable)",
+    )
+
+
+def open_bus(interface: str | None, channel: str | None, options: dict[str, Any]) -> can.BusABC:
+    resolved_interface, resolved_channel = resolve_transport(interface, channel)
+    return can.Bus(interface=resolved_interface, channel=resolved_channel, **options)
+
+
+def open_bus_from_args(args: argparse.Namespace) -> can.BusABC:
+    return open_bus(args.interface, args.channel, parse_options(args.bus_option))
+
+
+def add_priority_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        metavar="N",
+        help="run under SCHED_FIFO at priority N (1-99; needs root or CAP_SYS_NICE); threads "
+        "the transport starts afterwards inherit it",
+    )
+
+
+def apply_priority(priority: int | None, prog: str) -> None:
+    """Switch this process to SCHED_FIFO if asked; say so, and go on, if not permitted."""
+    if priority is None:
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError, ValueError) as error:
+        print(f"{prog}: real-time priority {priority} not applied: {error}", file=sys.stderr)
