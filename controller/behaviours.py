@@ -84,10 +84,11 @@ def avoid_obstacle(
     """AO (TL when ``side`` is +1, TR when -1): eq. 28-29.
 
     v_A = f_vA(min(d_L, d_R) cos beta), omega_A = f_omegaA(sin beta / min(d_L, d_R)) times the
-    side. Here beta is taken from the heading to the chosen edge of ``aim``, the obstacle grown
-    by ``config.ao_pass_margin``: while PT drives, the heading points at p_j and this is the paper's beta;
-    once AO has turned the TCP, measuring from the heading makes AO settle on the tangent
-    (pure pursuit: curvature 2 sin beta / d) instead of turning without end.
+    side. Here beta is taken from the heading to the chosen edge of ``aim``, the obstacle
+    grown by ``config.ao_pass_margin``: while PT drives, the heading points at p_j and this
+    is the paper's beta; once AO has turned the TCP, measuring from the heading makes AO
+    settle on the tangent (pure pursuit: curvature 2 sin beta / d) instead of turning
+    without end.
     """
     if not measurement.present:
         return STOP

@@ -139,7 +139,7 @@ class ControlLaw:
     def _avoid(self, measurement: ObstacleMeasurement, position: tuple[float, float]) -> Command:
         """AO with its TL/TR choice, held while the obstacle is ahead (or the TCP inside)."""
         if (
-            self.obstacle is None
+            self._aim is None
             or not measurement.present
             or (measurement.ahead <= AHEAD_NONE and measurement.clearance > 0.0)
         ):

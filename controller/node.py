@@ -2,9 +2,10 @@
 pure :class:`~controller.control_law.ControlLaw`.
 
 Real-time mode: ticks at absolute deadlines on the monotonic clock: it waits on the bus until
-just before each deadline, then polls. Each tick takes the newest complete, valid joint state, runs one control
-step and sends the command. If no valid joint state has arrived for ``STALE_TICKS`` ticks it
-sends zero (Enable = 0) and goes to fault; it never computes a command from a stale state.
+just before each deadline, then polls. Each tick takes the newest complete, valid joint
+state, runs one control step and sends the command. If no valid joint state has arrived for
+``STALE_TICKS`` ticks it sends zero (Enable = 0) and goes to fault; it never computes a
+command from a stale state.
 
 Lockstep mode: per tick it sends the command and a StepSync naming it, then waits for the
 plant's answer. A lost or corrupt frame costs a retry, never a wrong step, so the run is
@@ -151,6 +152,9 @@ class ControllerNode:
         self.fault = ControllerFault(0)
         self.plant_status: tuple[NodeState, int] | None = None
         self.states_received = 0
+        self._seen = 0
+        self._quiet_ticks = STALE_TICKS
+        self._next_status = -float("inf")
         self._awaiting: dict[int, float] = {}  # command counter -> when it was sent
         self._parts: dict[int, list[tuple[float, float, int] | None]] = {}
         self.state: JointState | None = None
@@ -288,14 +292,10 @@ class ControllerNode:
         """Tick at absolute deadlines until the scenario is done, or stopped.
 
         A tick that starts late still runs; slots missed entirely are skipped (and counted),
-        never run back to back. The joint state is stale once STALE_TICKS ticks have run
-        without a new one arriving.
+        never run back to back.
         """
         start = self.clock()
-        next_status = start
         deadline = start
-        seen = self.states_received
-        quiet_ticks = STALE_TICKS
         while self.running and not (self.node_state is NodeState.RUNNING and self.finished):
             if max_wall_time is not None and self.clock() - start > max_wall_time:
                 break
@@ -307,30 +307,10 @@ class ControllerNode:
                     self.sleep(0.0)  # yields the GIL to the transport's threads
                 now = self.clock()
             lateness = now - deadline
-            self.stats.loops += 1
             self.stats.lateness.append(lateness)
             if lateness > LATE_TOLERANCE * self.period:
                 self.stats.deadline_misses += 1
-            self.drain()
-            quiet_ticks = 0 if self.states_received != seen else quiet_ticks + 1
-            seen = self.states_received
-            state = self.state
-            if self.node_state is NodeState.READY and quiet_ticks == 0:
-                self.node_state = NodeState.RUNNING
-            if self.node_state is NodeState.RUNNING and quiet_ticks >= STALE_TICKS:
-                self.stats.stale_faults += 1
-                self._enter_fault(ControllerFault.STALE_STATE)
-            if self.node_state is NodeState.RUNNING and state is not None:
-                output = self._control(state)
-                counter = self._send_command(output.command, True)
-                self._awaiting[counter] = self.clock()
-                self.stats.commands += 1
-                self.stats.ticks += 1
-            else:
-                self._send_command((0.0, 0.0, 0.0), False)
-            if now >= next_status:
-                self._send_status()
-                next_status += STATUS_PERIOD
+            self.realtime_tick(now)
             deadline += self.period
             now = self.clock()
             if now > deadline:
@@ -338,6 +318,34 @@ class ControllerNode:
                 missed = int((now - deadline) / self.period)
                 self.stats.deadline_misses += missed
                 deadline += missed * self.period
+
+    def realtime_tick(self, now: float) -> None:
+        """One real-time tick: take what arrived, check freshness, command, report.
+
+        The joint state is stale once STALE_TICKS ticks have run without a new one arriving;
+        from then on the command is zero with Enable = 0 and the node is in fault.
+        """
+        self.stats.loops += 1
+        self.drain()
+        self._quiet_ticks = 0 if self.states_received != self._seen else self._quiet_ticks + 1
+        self._seen = self.states_received
+        state = self.state
+        if self.node_state is NodeState.READY and self._quiet_ticks == 0:
+            self.node_state = NodeState.RUNNING
+        if self.node_state is NodeState.RUNNING and self._quiet_ticks >= STALE_TICKS:
+            self.stats.stale_faults += 1
+            self._enter_fault(ControllerFault.STALE_STATE)
+        if self.node_state is NodeState.RUNNING and state is not None:
+            output = self._control(state)
+            counter = self._send_command(output.command, True)
+            self._awaiting[counter] = self.clock()
+            self.stats.commands += 1
+            self.stats.ticks += 1
+        else:
+            self._send_command((0.0, 0.0, 0.0), False)
+        if now >= self._next_status:
+            self._send_status()
+            self._next_status = now + STATUS_PERIOD
 
     # --- lockstep --------------------------------------------------------------------------------
 

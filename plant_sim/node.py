@@ -3,7 +3,8 @@
 Real-time mode: the plant runs on its own monotonic clock. It integrates the joints up to the
 present whenever a valid command arrives and answers at once with the joint state. It also
 integrates every period on its own, and sends the state then too while no command comes, so
-a controller that starts later finds it. If no valid command arrives for ``COMMAND_TIMEOUT`` it brakes to zero.
+a controller that starts later finds it. If no valid command arrives for ``COMMAND_TIMEOUT``
+it brakes to zero.
 
 Lockstep mode: time moves only on StepSync frames. Each one advances exactly one control
 period under the command it names, and the plant answers (see the DBC's comment on StepSync).
@@ -199,6 +200,13 @@ class PlantNode:
             self._advance(self.period)
             self.model_time += self.period
 
+    def on_period(self, now: float) -> None:
+        """Real time, once a period: integrate, brake if commands stopped, report if idle."""
+        self._integrate_to(now)
+        self._watchdog(now)
+        if now - self.last_command_time > self.period:
+            self._send_state()  # nobody is commanding: keep them informed anyway
+
     def _watchdog(self, now: float) -> None:
         if now - self.last_command_time > COMMAND_TIMEOUT:
             if self.command != (0.0, 0.0, 0.0):
@@ -257,10 +265,7 @@ class PlantNode:
                 self.handle(message)
             now = self.clock()
             if self.clock_mode is ClockMode.REALTIME and now >= next_tick:
-                self._integrate_to(now)
-                self._watchdog(now)
-                if now - self.last_command_time > self.period:
-                    self._send_state()  # nobody is commanding: keep them informed anyway
+                self.on_period(now)
                 next_tick += self.period * max(1, int((now - next_tick) / self.period) + 1)
             if now >= next_status:
                 self._send_status()
