@@ -19,8 +19,8 @@ from tqdm import tqdm
 
 from controller.coordination import Mode
 from controller.measures import Measures, format_table
+from controller.process import ClockMode
 from controller.scenario import load_scenario
-from plant_sim.node import ClockMode
 from protocol.bus import add_bus_arguments, add_priority_argument, resolve_transport
 from protocol.errors import ScaraError
 

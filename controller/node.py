@@ -20,13 +20,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from types import FrameType
 
 import can
 import numpy as np
@@ -34,20 +32,13 @@ import numpy as np
 from controller.control_law import ControlOutput
 from controller.coordination import Mode
 from controller.measures import compute_measures
+from controller.process import ClockMode, add_node_arguments, open_node, stop_on_signals
 from controller.runlog import COLUMNS, RunLog, row_of
-from controller.scenario import Scenario, load_scenario
+from controller.scenario import Scenario
 from controller.simulation import build_law
-from plant_sim.node import ClockMode
-from protocol.bus import (
-    add_bus_arguments,
-    add_priority_argument,
-    apply_priority,
-    open_bus_from_args,
-)
 from protocol.codec import WIRE
 from protocol.e2e import E2EMonitor
-from protocol.errors import DecodeError, EncodeError, ScaraError
-from protocol.faults import FaultInjector, FaultSpec, add_fault_arguments
+from protocol.errors import DecodeError, EncodeError
 from protocol.messages import (
     COMMAND,
     CONTROLLER_STATUS,
@@ -434,50 +425,23 @@ def build_parser() -> argparse.ArgumentParser:
         description="The SCARA controller: runs a scenario at a fixed rate and commands the "
         "plant's joint velocities over CAN.",
     )
-    parser.add_argument("scenario", nargs="?", default="reference", help="scenario file or name")
+    add_node_arguments(parser, "real time at absolute deadlines, or lockstep with the plant")
     parser.add_argument(
         "--mode", choices=[m.value for m in Mode], help="coordination (default: the scenario's)"
     )
-    parser.add_argument(
-        "--clock",
-        choices=[m.value for m in ClockMode],
-        default=ClockMode.REALTIME.value,
-        help="real time at absolute deadlines, or lockstep with the plant",
-    )
-    parser.add_argument(
-        "--rate", type=float, help="control rate in Hz (default: the scenario's, 500)"
-    )
     parser.add_argument("--out", type=Path, help="write result JSON and the run log (.npz) here")
     parser.add_argument("--max-wall-time", type=float, help="give up after this many seconds")
-    add_bus_arguments(parser)
-    add_fault_arguments(parser)
-    add_priority_argument(parser)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    apply_priority(args.realtime_priority, "controller")
-    try:
-        scenario = load_scenario(args.scenario)
-        if args.mode:
-            scenario = scenario.with_mode(Mode(args.mode))
-        if args.rate:
-            scenario = scenario.with_rate(args.rate)
-        bus = open_bus_from_args(args)
-        injector = (
-            FaultInjector(bus, FaultSpec.parse(args.inject_faults)) if args.inject_faults else None
-        )
-    except (ScaraError, can.CanError, ValueError) as error:
-        print(f"controller: {error}", file=sys.stderr)
+    setup = open_node(args, "controller")
+    if setup is None:
         return 2
-    node = ControllerNode(injector or bus, scenario, ClockMode(args.clock))
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        node.stop()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    scenario = setup.scenario.with_mode(Mode(args.mode)) if args.mode else setup.scenario
+    node = ControllerNode(setup.bus, scenario, ClockMode(args.clock))
+    stop_on_signals(node.stop)
     started = time.monotonic()
     try:
         if node.clock_mode is ClockMode.LOCKSTEP:
@@ -486,19 +450,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             node.run_realtime(args.max_wall_time)
         node.send_zero()
     finally:
-        (injector or bus).shutdown()
+        setup.bus.shutdown()
     wall_time = time.monotonic() - started
     result = node.result()
     result["wall_time_s"] = wall_time
     result["realtime_factor"] = node.tick * node.period / wall_time
-    result["injected"] = asdict(injector.counts) if injector else None
+    result["injected"] = asdict(setup.injector.counts) if setup.injector else None
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "controller_result.json").write_text(json.dumps(result, indent=2) + "\n")
         np.savez_compressed(
             args.out / "controller_log.npz", data=node.log.data, columns=np.array(COLUMNS)
         )
-    if not args.out:
+    else:
         print(json.dumps(result, indent=2))
     return 0 if result["completed"] and not result["faults"] else 1
 

@@ -18,29 +18,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from enum import Enum
 from pathlib import Path
-from types import FrameType
 
 import can
 
-from controller.scenario import Scenario, load_scenario
+from controller.process import ClockMode, add_node_arguments, open_node, stop_on_signals
+from controller.scenario import Scenario
 from plant_sim.model import PlantModel
-from protocol.bus import (
-    add_bus_arguments,
-    add_priority_argument,
-    apply_priority,
-    open_bus_from_args,
-)
 from protocol.codec import WIRE
 from protocol.e2e import E2EMonitor
-from protocol.errors import DecodeError, ScaraError
-from protocol.faults import FaultInjector, FaultSpec, add_fault_arguments
+from protocol.errors import DecodeError
 from protocol.kinematics import forward
 from protocol.messages import (
     COMMAND,
@@ -60,11 +51,6 @@ from protocol.messages import (
 
 COMMAND_TIMEOUT = 0.020
 """s without a valid command before the plant brakes to zero (real-time mode)."""
-
-
-class ClockMode(Enum):
-    REALTIME = "realtime"
-    LOCKSTEP = "lockstep"
 
 
 @dataclass(slots=True)
@@ -284,55 +270,30 @@ def build_parser() -> argparse.ArgumentParser:
         description="The SCARA plant simulator: integrates the joints under the commands it "
         "receives over CAN and answers with the joint state.",
     )
-    parser.add_argument("scenario", nargs="?", default="reference", help="scenario file or name")
-    parser.add_argument(
-        "--clock",
-        choices=[mode.value for mode in ClockMode],
-        default=ClockMode.REALTIME.value,
-        help="real time on its own clock, or lockstep driven by StepSync frames",
-    )
-    parser.add_argument("--rate", type=float, help="plant rate in Hz (default: the scenario's)")
+    add_node_arguments(parser, "real time on its own clock, or lockstep driven by StepSync")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
     parser.add_argument("--stats", type=Path, help="write counters as JSON here on exit")
-    add_bus_arguments(parser)
-    add_fault_arguments(parser)
-    add_priority_argument(parser)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    apply_priority(args.realtime_priority, "plant_sim")
-    try:
-        scenario = load_scenario(args.scenario)
-        if args.rate:
-            scenario = scenario.with_rate(args.rate)
-        bus = open_bus_from_args(args)
-        if args.inject_faults:
-            bus = injector = FaultInjector(bus, FaultSpec.parse(args.inject_faults))
-        else:
-            injector = None
-    except (ScaraError, can.CanError, ValueError) as error:
-        print(f"plant_sim: {error}", file=sys.stderr)
+    setup = open_node(args, "plant_sim")
+    if setup is None:
         return 2
-    node = PlantNode(bus, scenario, ClockMode(args.clock))
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        node.stop()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    node = PlantNode(setup.bus, setup.scenario, ClockMode(args.clock))
+    stop_on_signals(node.stop)
     try:
         node.run(args.duration)
     finally:
-        bus.shutdown()
+        setup.bus.shutdown()
         if args.stats:
             report = {
                 "stats": asdict(node.stats),
                 "e2e": asdict(node.monitor.counts),
                 "faults": int(node.fault),
                 "state": node.node_state.name,
-                "injected": asdict(injector.counts) if injector else None,
+                "injected": asdict(setup.injector.counts) if setup.injector else None,
             }
             args.stats.write_text(json.dumps(report, indent=2) + "\n")
     return 0

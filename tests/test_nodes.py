@@ -10,8 +10,9 @@ import can
 import pytest
 
 from controller.node import STALE_TICKS, ControllerNode
+from controller.process import ClockMode
 from controller.scenario import load_scenario
-from plant_sim.node import COMMAND_TIMEOUT, ClockMode, PlantNode
+from plant_sim.node import COMMAND_TIMEOUT, PlantNode
 from protocol.bus import parse_options, resolve_transport
 from protocol.codec import WIRE
 from protocol.e2e import Check, E2EMonitor
