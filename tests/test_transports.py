@@ -1,0 +1,85 @@
+"""Lockstep over transports other than Zenoh gives the in-process simulation's results too.
+
+- ``virtual``: python-can's in-process bus, plant and controller in two threads;
+- ``udp_multicast``: two real processes inside a network namespace made for the test, whose
+  loopback carries the multicast group (DESIGN.md section 6: never on the host's network).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from controller.coordination import Mode
+from controller.node import ControllerNode
+from controller.process import ClockMode
+from controller.scenario import load_scenario
+from controller.simulation import simulate
+from plant_sim.node import PlantNode
+
+ROOT = Path(__file__).resolve().parent.parent
+NAMESPACE_SETUP = (
+    "ip link set lo up && ip link set lo multicast on && ip route add 239.0.0.0/8 dev lo"
+)
+
+
+def test_lockstep_over_the_virtual_bus_is_bit_identical_to_the_simulation() -> None:
+    scenario = load_scenario("reference").with_mode(Mode.CONVENTIONAL)
+    plant_bus = can.Bus(interface="virtual", channel="lockstep-virtual")
+    controller_bus = can.Bus(interface="virtual", channel="lockstep-virtual")
+    plant = PlantNode(plant_bus, scenario, ClockMode.LOCKSTEP)
+    server = threading.Thread(target=plant.run, daemon=True)
+    server.start()
+    try:
+        controller = ControllerNode(controller_bus, scenario, ClockMode.LOCKSTEP)
+        controller.run_lockstep(startup_timeout=10.0)
+    finally:
+        plant.stop()
+        server.join(timeout=5.0)
+        plant_bus.shutdown()
+        controller_bus.shutdown()
+    expected = simulate(scenario)
+    assert controller.finished
+    assert np.array_equal(controller.log.data, expected.log.data)
+    assert controller.result()["measures"] == expected.measures.as_dict()
+
+
+def _can_make_namespace() -> bool:
+    if shutil.which("unshare") is None or shutil.which("ip") is None:
+        return False
+    probe = subprocess.run(
+        ["unshare", "-n", "sh", "-c", NAMESPACE_SETUP], capture_output=True, timeout=10
+    )
+    return probe.returncode == 0
+
+
+@pytest.mark.skipif(
+    not _can_make_namespace(), reason="cannot create a network namespace (unshare -n) here"
+)
+def test_lockstep_over_udp_multicast_in_a_namespace(tmp_path: Path) -> None:
+    pytest.importorskip("msgpack", reason="python-can[multicast] is not installed")
+    launch = [
+        sys.executable, "-m", "controller.launch", "reference", "--clock", "lockstep",
+        "--interface", "udp_multicast", "--channel", "239.74.163.2", "--out", str(tmp_path),
+    ]  # fmt: skip
+    command = f"{NAMESPACE_SETUP} && exec {' '.join(launch)}"
+    completed = subprocess.run(
+        ["unshare", "-n", "sh", "-c", command],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert completed.returncode == 0, completed.stderr[-2000:]
+    result = json.loads((tmp_path / "controller_result.json").read_text())
+    expected = simulate(load_scenario("reference"))
+    assert result["measures"] == json.loads(json.dumps(expected.measures.as_dict()))
+    assert result["e2e"]["corrupt"] == 0
