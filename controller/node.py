@@ -69,6 +69,8 @@ LATE_TOLERANCE = 0.25
 """A tick starting later than this fraction of the period counts as a missed deadline."""
 LOCKSTEP_RETRY = 0.02
 """s the controller waits for the plant's answer in lockstep before sending again."""
+LOCKSTEP_GIVE_UP = 1.0
+"""s without any answer in lockstep before the controller faults (the plant is gone)."""
 
 
 @dataclass(slots=True)
@@ -340,25 +342,42 @@ class ControllerNode:
 
     # --- lockstep --------------------------------------------------------------------------------
 
-    def run_lockstep(self, startup_timeout: float = 30.0) -> None:
-        """Step the plant tick by tick; a lost answer is asked for again."""
-        deadline = self.clock() + startup_timeout
-        state = self._exchange(tick=0, command_counters=None, give_up=deadline)
+    def run_lockstep(
+        self, startup_timeout: float = 30.0, max_wall_time: float | None = None
+    ) -> None:
+        """Step the plant tick by tick; a lost answer is asked for again.
+
+        If no answer comes for LOCKSTEP_GIVE_UP the plant is taken as gone: the controller
+        sends zero with Enable = 0, goes to fault and returns.
+        """
+        started = self.clock()
+        state = self._exchange(tick=0, command_counters=None, give_up=started + startup_timeout)
         if state is None:
             return
         self.node_state = NodeState.RUNNING
         next_status = self.clock()
         while self.running and not self.finished:
+            if max_wall_time is not None and self.clock() - started > max_wall_time:
+                return
             output = self._control(state)
-            sent: set[int] = set()
-            counter = self._send_command(output.command, True)
-            sent.add(counter)
+            sent = {self._send_command(output.command, True)}
+            give_up = self.clock() + LOCKSTEP_GIVE_UP
             answer = None
             while answer is None and self.running:
                 answer = self._exchange(self.tick, sent, give_up=self.clock() + LOCKSTEP_RETRY)
-                if answer is None:
-                    self.stats.lockstep_retries += 1
-                    sent.add(self._send_command(output.command, True))
+                if answer is not None:
+                    break
+                self.stats.lockstep_retries += 1
+                if self.clock() >= give_up:
+                    self.stats.stale_faults += 1
+                    self._enter_fault(ControllerFault.STALE_STATE)
+                    self.send_zero()
+                    self._send_status()
+                    return
+                sent.add(self._send_command(output.command, True))
+                if self.clock() >= next_status:
+                    self._send_status()
+                    next_status += STATUS_PERIOD
             if answer is None:
                 return
             state = answer
@@ -445,7 +464,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.monotonic()
     try:
         if node.clock_mode is ClockMode.LOCKSTEP:
-            node.run_lockstep()
+            node.run_lockstep(max_wall_time=args.max_wall_time)
         else:
             node.run_realtime(args.max_wall_time)
         node.send_zero()

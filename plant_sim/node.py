@@ -35,6 +35,7 @@ from protocol.errors import DecodeError
 from protocol.kinematics import forward
 from protocol.messages import (
     COMMAND,
+    CONTROLLER_STATUS,
     NODE_COMMAND,
     PLANT_STATUS,
     STATE,
@@ -261,7 +262,8 @@ class PlantNode:
         self.running = False
 
 
-_RECEIVED = {codec.frame_id for codec in (COMMAND, STEP, STOP, NODE_COMMAND)}
+# ControllerStatus is only counted (checked, never acted on): the plant needs nothing from it.
+_RECEIVED = {codec.frame_id for codec in (COMMAND, STEP, STOP, NODE_COMMAND, CONTROLLER_STATUS)}
 
 
 def build_parser() -> argparse.ArgumentParser:

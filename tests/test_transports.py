@@ -83,3 +83,25 @@ def test_lockstep_over_udp_multicast_in_a_namespace(tmp_path: Path) -> None:
     expected = simulate(load_scenario("reference"))
     assert result["measures"] == json.loads(json.dumps(expected.measures.as_dict()))
     assert result["e2e"]["corrupt"] == 0
+
+
+def test_lockstep_controller_faults_when_the_plant_goes_away(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr("controller.node.LOCKSTEP_GIVE_UP", 0.2)
+    scenario = load_scenario("reference")
+    plant_bus = can.Bus(interface="virtual", channel="lockstep-gone")
+    controller_bus = can.Bus(interface="virtual", channel="lockstep-gone")
+    plant = PlantNode(plant_bus, scenario, ClockMode.LOCKSTEP)
+    server = threading.Thread(target=plant.run, kwargs={"duration": 0.3}, daemon=True)
+    server.start()
+    try:
+        controller = ControllerNode(controller_bus, scenario, ClockMode.LOCKSTEP)
+        controller.run_lockstep(startup_timeout=5.0, max_wall_time=20.0)
+    finally:
+        server.join(timeout=5.0)
+        plant_bus.shutdown()
+        controller_bus.shutdown()
+    assert not controller.finished
+    assert controller.tick > 0
+    assert controller.result()["faults"] == ["STALE_STATE"]
