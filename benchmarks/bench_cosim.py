@@ -73,7 +73,12 @@ def run_launcher(arguments: list[str], out: Path, timeout: float) -> dict[str, A
     command = [sys.executable, "-m", "controller.launch", *arguments, "--out", str(out)]
     command += ["--interface", "zenoh", "--channel", "bench"]
     command += ["--bus-option", f"port={free_port()}"]
-    subprocess.run(command, capture_output=True, timeout=timeout, check=False)
+    launcher = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        launcher.wait(timeout)
+    except subprocess.TimeoutExpired:
+        launcher.terminate()  # the launcher stops its two nodes on SIGTERM
+        launcher.wait(30)
     result: dict[str, Any] = json.loads((out / "controller_result.json").read_text())
     return result
 

@@ -13,6 +13,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from tqdm import tqdm
@@ -26,6 +27,8 @@ from protocol.errors import ScaraError
 
 STOP_GRACE = 5.0
 """s a process gets to exit after SIGINT before it is killed."""
+REALTIME_SLACK = 10.0
+"""s a real-time run may take beyond twice the scenario's duration (start-up, waiting)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -58,8 +61,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def node_commands(args: argparse.Namespace) -> tuple[list[str], list[str]]:
-    """The command lines of the plant and the controller for ``args``."""
+def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str], list[str]]:
+    """The command lines of the plant and the controller for ``args``.
+
+    In real time the controller gets twice the scenario's ``duration`` (plus start-up) at most:
+    a controller in fault waits for a reset that nobody here will send.
+    """
     interface, channel = resolve_transport(args.interface, args.channel)
     bus = ["--interface", interface, "--channel", channel]
     for option in args.bus_option:
@@ -78,7 +85,10 @@ def node_commands(args: argparse.Namespace) -> tuple[list[str], list[str]]:
         str(args.out / "plant.json"),
     ]
     controller = [sys.executable, "-m", "controller.node", *common, "--out", str(args.out)]
-    controller += ["--max-wall-time", str(args.timeout)]
+    wall_time = args.timeout
+    if args.clock == ClockMode.REALTIME.value:
+        wall_time = min(wall_time, 2.0 * duration + REALTIME_SLACK)
+    controller += ["--max-wall-time", f"{wall_time:g}"]
     if args.mode:
         controller += ["--mode", args.mode]
     if args.inject_faults:
@@ -154,8 +164,13 @@ def print_report(result: dict[str, Any]) -> None:
         )
 
 
+def _interrupt(signum: int, frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, _interrupt)  # stop the nodes on SIGTERM as on Ctrl-C
     try:
         scenario = load_scenario(args.scenario)
     except ScaraError as error:
@@ -164,7 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     for stale in ("controller_result.json", "plant.json"):
         (args.out / stale).unlink(missing_ok=True)
-    plant_command, controller_command = node_commands(args)
+    plant_command, controller_command = node_commands(args, scenario.duration)
     order = (
         [controller_command, plant_command]
         if args.controller_first

@@ -32,7 +32,13 @@ import numpy as np
 from controller.control_law import ControlOutput
 from controller.coordination import Mode
 from controller.measures import compute_measures
-from controller.process import ClockMode, add_node_arguments, open_node, stop_on_signals
+from controller.process import (
+    ClockMode,
+    add_node_arguments,
+    open_node,
+    settle_memory,
+    stop_on_signals,
+)
 from controller.runlog import COLUMNS, RunLog, row_of
 from controller.scenario import Scenario
 from controller.simulation import build_law
@@ -461,6 +467,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     scenario = setup.scenario.with_mode(Mode(args.mode)) if args.mode else setup.scenario
     node = ControllerNode(setup.bus, scenario, ClockMode(args.clock))
     stop_on_signals(node.stop)
+    settle_memory()
     started = time.monotonic()
     try:
         if node.clock_mode is ClockMode.LOCKSTEP:

@@ -26,7 +26,13 @@ from pathlib import Path
 
 import can
 
-from controller.process import ClockMode, add_node_arguments, open_node, stop_on_signals
+from controller.process import (
+    ClockMode,
+    add_node_arguments,
+    open_node,
+    settle_memory,
+    stop_on_signals,
+)
 from controller.scenario import Scenario
 from plant_sim.model import PlantModel
 from protocol.codec import WIRE
@@ -285,6 +291,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     node = PlantNode(setup.bus, setup.scenario, ClockMode(args.clock))
     stop_on_signals(node.stop)
+    settle_memory()
     try:
         node.run(args.duration)
     finally:
