@@ -42,9 +42,8 @@ from controller.process import (
 from controller.runlog import COLUMNS, RunLog, row_of
 from controller.scenario import Scenario
 from controller.simulation import build_law
-from protocol.codec import WIRE
 from protocol.e2e import E2EMonitor
-from protocol.errors import DecodeError, EncodeError
+from protocol.errors import EncodeError
 from protocol.messages import (
     COMMAND,
     CONTROLLER_STATUS,
@@ -64,6 +63,7 @@ from protocol.messages import (
     Request,
     decode_status,
     encode_status,
+    send_frame,
 )
 
 STALE_TICKS = 3
@@ -180,17 +180,10 @@ class ControllerNode:
             message = self.bus.recv(timeout=0.0)
 
     def handle(self, message: can.Message) -> None:
-        if message.is_error_frame or message.is_remote_frame or message.is_extended_id:
+        accepted = self.monitor.accept(message, _RECEIVED)
+        if accepted is None:
             return
-        if message.arbitration_id not in _RECEIVED:
-            return
-        try:
-            codec, counter, values = WIRE.decode(message.arbitration_id, message.data)
-        except DecodeError:
-            self.monitor.corrupt()
-            return
-        if not self.monitor.check(codec.frame_id, counter).usable:
-            return
+        codec, counter, values = accepted
         if codec.frame_id in STATE_IDS:
             self._on_state_part(STATE_IDS.index(codec.frame_id), counter, values)
         elif codec is PLANT_STATUS:
@@ -236,10 +229,7 @@ class ControllerNode:
     # --- frames out --------------------------------------------------------------------------
 
     def _send(self, frame_id: int, data: bytes) -> None:
-        try:
-            self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
-        except can.CanError as error:
-            print(f"controller: send failed: {error}", file=sys.stderr)
+        send_frame(self.bus, frame_id, data, "controller")
 
     def _send_command(self, rates: Joints, enable: bool) -> int:
         counter = self.command_counter.next()

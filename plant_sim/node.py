@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -35,9 +34,7 @@ from controller.process import (
 )
 from controller.scenario import Scenario
 from plant_sim.model import PlantModel
-from protocol.codec import WIRE
 from protocol.e2e import E2EMonitor
-from protocol.errors import DecodeError
 from protocol.kinematics import forward
 from protocol.messages import (
     COMMAND,
@@ -54,6 +51,7 @@ from protocol.messages import (
     PlantFault,
     Request,
     encode_status,
+    send_frame,
 )
 
 COMMAND_TIMEOUT = 0.020
@@ -112,17 +110,10 @@ class PlantNode:
 
     def handle(self, message: can.Message) -> None:
         """Act on one received frame, or count it and drop it."""
-        if message.is_error_frame or message.is_remote_frame or message.is_extended_id:
+        accepted = self.monitor.accept(message, _RECEIVED)
+        if accepted is None:
             return
-        if message.arbitration_id not in _RECEIVED:
-            return
-        try:
-            codec, counter, values = WIRE.decode(message.arbitration_id, message.data)
-        except DecodeError:
-            self.monitor.corrupt()
-            return
-        if not self.monitor.check(codec.frame_id, counter).usable:
-            return
+        codec, counter, values = accepted
         if codec is COMMAND:
             self._on_command(counter, values)
         elif codec is STEP:
@@ -237,10 +228,7 @@ class PlantNode:
         self._send(PLANT_STATUS.frame_id, data)
 
     def _send(self, frame_id: int, data: bytes) -> None:
-        try:
-            self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
-        except can.CanError as error:
-            print(f"plant_sim: send failed: {error}", file=sys.stderr)
+        send_frame(self.bus, frame_id, data, "plant_sim")
 
     # --- loops -------------------------------------------------------------------------------
 

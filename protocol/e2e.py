@@ -11,7 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
-from protocol.codec import COUNTER_MODULO
+import can
+
+from protocol.codec import COUNTER_MODULO, WIRE, MessageCodec
+from protocol.errors import DecodeError
 
 MAX_FORWARD_JUMP = COUNTER_MODULO // 2
 """A counter more than this far ahead is taken as an old frame arriving late (stale)."""
@@ -71,6 +74,28 @@ class E2EMonitor:
             self.counts.lost += step - 1
             return Check.LOST
         return Check.OK
+
+    def accept(
+        self, message: can.Message, wanted: set[int]
+    ) -> tuple[MessageCodec, int, tuple[float, ...]] | None:
+        """A received frame, decoded, if it may be acted on; None otherwise.
+
+        Frames this node does not listen to (other IDs, extended, remote, error frames) are
+        passed over; ones that fail to decode are counted as corrupt; ones whose counter is
+        not usable are counted by :meth:`check`.
+        """
+        if message.is_error_frame or message.is_remote_frame or message.is_extended_id:
+            return None
+        if message.arbitration_id not in wanted:
+            return None
+        try:
+            codec, counter, values = WIRE.decode(message.arbitration_id, message.data)
+        except DecodeError:
+            self.corrupt()
+            return None
+        if not self.check(codec.frame_id, counter).usable:
+            return None
+        return codec, counter, values
 
     def corrupt(self) -> None:
         """Count a frame that failed to decode (bad CRC, length, ID or range)."""

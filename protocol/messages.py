@@ -8,9 +8,12 @@ bit-identical results.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag
+
+import can
 
 from protocol.codec import COUNTER_MODULO, WIRE, MessageCodec
 
@@ -102,6 +105,14 @@ def encode_status(
 def decode_status(values: Sequence[float]) -> Status:
     state, fault, flags, bad, extra = (int(v) for v in values)
     return Status(NodeState(min(state, NodeState.ESTOP)), fault, flags, bad, extra)
+
+
+def send_frame(bus: can.BusABC, frame_id: int, data: bytes, prog: str) -> None:
+    """Send one frame; a failure is said on stderr and the node goes on (the next tick retries)."""
+    try:
+        bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+    except can.CanError as error:
+        print(f"{prog}: send failed: {error}", file=sys.stderr)
 
 
 def on_the_wire_command(rates: Joints) -> Joints:
