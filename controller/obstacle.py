@@ -247,22 +247,23 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
         return u - a, (a, 0.0)
     if u == 0.0:
         return v - b, (0.0, b)
-    a2, b2 = a * a, b * b
-    # Both starts are below the root (either term alone is 1 there); the larger one keeps
-    # t + b^2 away from 0 for points a hair off the long axis.
-    t = max(-b2 + b * v, -a2 + a * u)
+    # Newton on s = t + b^2 rather than on t: near the long axis the root t is within a hair
+    # of -b^2, and t + b^2 computed from t would keep only a few digits.
+    gap = a * a - b * b
+    # Both starts are below the root (either term alone is 1 there).
+    s = max(b * v, a * u - gap)
     for _ in range(64):
-        ratio_u = a * u / (t + a2)
-        ratio_v = b * v / (t + b2)
+        ratio_u = a * u / (s + gap)
+        ratio_v = b * v / s
         value = ratio_u * ratio_u + ratio_v * ratio_v - 1.0
         if value <= 0.0:
             break
-        slope = -2.0 * (ratio_u * ratio_u / (t + a2) + ratio_v * ratio_v / (t + b2))
+        slope = -2.0 * (ratio_u * ratio_u / (s + gap) + ratio_v * ratio_v / s)
         step = value / slope
-        t -= step
-        if abs(step) <= 1e-15 * max(1.0, abs(t)):
+        s -= step
+        if abs(step) <= 1e-15 * s:
             break
-    cx, cy = a2 * u / (t + a2), b2 * v / (t + b2)
+    cx, cy = a * a * u / (s + gap), b * b * v / s
     distance = math.hypot(cx - u, cy - v)
     return (-distance if inside else distance), (cx, cy)
 
