@@ -30,6 +30,14 @@ from typing import Any
 
 import can
 import pytest
+from hypothesis import settings
+
+# Shared machines are noisy: no per-example deadlines. In CI the examples are derived from
+# the test itself, so a run is repeatable and a red CI is never a roll of the dice; locally
+# they stay random, which is how new counterexamples are found.
+settings.register_profile("local", deadline=None)
+settings.register_profile("ci", deadline=None, derandomize=True)
+settings.load_profile("ci" if os.environ.get("CI") else "local")
 
 ROOT = Path(__file__).resolve().parent.parent
 VCAN0 = Path("/sys/class/net/vcan0")
