@@ -91,6 +91,7 @@ def realtime_rows(duration_scenario: str, priority: int | None, out: Path) -> li
         label = f"SCHED_FIFO {priority}"
     result = run_launcher(arguments, out, timeout=120)
     loop = result["loop"]
+    loop["answered_within_tick_fraction"] = loop["answered_within_tick_fraction"] or 0.0
     return [
         [
             f"1 kHz real time, {label}: tick lateness p99 ({loop['loops']} ticks, "

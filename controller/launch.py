@@ -137,7 +137,7 @@ def print_report(result: dict[str, Any]) -> None:
         f"{loop['lateness_max_us']:.0f} us; deadline misses {loop['deadline_misses']} "
         f"({100 * loop['deadline_miss_fraction']:.2f} %), overruns {loop['overruns']}"
     )
-    if result["clock"] == ClockMode.REALTIME.value:
+    if loop["answered_within_tick_fraction"] is not None:
         print(
             f"answer to a command within one tick: "
             f"{100 * loop['answered_within_tick_fraction']:.2f} % (delay p50 "
@@ -185,11 +185,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.controller_first
         else [plant_command, controller_command]
     )
-    processes = [subprocess.Popen(command) for command in order]
-    controller = processes[0] if args.controller_first else processes[1]
-    started = time.monotonic()
+    processes: list[subprocess.Popen[bytes]] = []
     interrupted = False
     try:
+        processes += [subprocess.Popen(command) for command in order]
+        controller = processes[0] if args.controller_first else processes[1]
+        started = time.monotonic()
         with tqdm(
             total=round(scenario.duration, 1),
             unit="s",
@@ -204,7 +205,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         interrupted = True
         print("\nscara-run: interrupted, stopping the nodes", file=sys.stderr)
-    codes = [stop(process) for process in reversed(processes)]
+    finally:
+        codes = [stop(process) for process in reversed(processes)]
     if interrupted:
         return 130
     if not (args.out / "controller_result.json").exists():

@@ -61,7 +61,6 @@ from protocol.messages import (
     NodeState,
     PlantFault,
     Request,
-    decode_status,
     encode_status,
     send_frame,
 )
@@ -73,7 +72,7 @@ SPIN = 0.0002
 ~100 us late here); each poll yields the GIL, which the transport's receive threads need."""
 LATE_TOLERANCE = 0.25
 """A tick starting later than this fraction of the period counts as a missed deadline."""
-LOCKSTEP_RETRY = 0.02
+LOCKSTEP_RETRY = 0.005
 """s the controller waits for the plant's answer in lockstep before sending again."""
 LOCKSTEP_GIVE_UP = 1.0
 """s without any answer in lockstep before the controller faults (the plant is gone)."""
@@ -97,14 +96,16 @@ class LoopStats:
     overruns: int = 0
     stale_faults: int = 0
     lockstep_retries: int = 0
-    commands: int = 0
     lateness: list[float] = field(default_factory=list)
     answer_delay: list[float] = field(default_factory=list)
 
-    def summary(self, period: float) -> dict[str, float | int]:
+    def summary(self, period: float) -> dict[str, float | int | None]:
         lateness = np.asarray(self.lateness) if self.lateness else np.zeros(1)
         answers = np.asarray(self.answer_delay)
-        within = float(np.sum(answers <= period)) / self.commands if self.commands else float("nan")
+        # Real time only (loops counts its ticks): lockstep has no "within a tick".
+        within = (
+            float(np.sum(answers <= period)) / self.ticks if self.loops and self.ticks else None
+        )
         return {
             "loops": self.loops,
             "ticks": self.ticks,
@@ -149,7 +150,6 @@ class ControllerNode:
         self.running = True
         self.node_state = NodeState.READY
         self.fault = ControllerFault(0)
-        self.plant_status: tuple[NodeState, int] | None = None
         self.states_received = 0
         self._seen = 0
         self._quiet_ticks = STALE_TICKS
@@ -187,9 +187,7 @@ class ControllerNode:
         if codec.frame_id in STATE_IDS:
             self._on_state_part(STATE_IDS.index(codec.frame_id), counter, values)
         elif codec is PLANT_STATUS:
-            status = decode_status(values)
-            self.plant_status = (status.state, status.fault)
-            if status.fault & (PlantFault.JOINT_LIMIT | PlantFault.COLLISION):
+            if int(values[1]) & (PlantFault.JOINT_LIMIT | PlantFault.COLLISION):
                 self._enter_fault(ControllerFault.PLANT_FAULT)
         elif codec is STOP:
             self.fault |= ControllerFault.ESTOP
@@ -328,7 +326,6 @@ class ControllerNode:
             output = self._control(state)
             counter = self._send_command(output.command, True)
             self._awaiting[counter] = self.clock()
-            self.stats.commands += 1
             self.stats.ticks += 1
         else:
             self._send_command((0.0, 0.0, 0.0), False)
@@ -344,25 +341,26 @@ class ControllerNode:
         """Step the plant tick by tick; a lost answer is asked for again.
 
         If no answer comes for LOCKSTEP_GIVE_UP the plant is taken as gone: the controller
-        sends zero with Enable = 0, goes to fault and returns.
+        sends zero with Enable = 0, goes to fault and returns. A fault, an e-stop or a reset
+        received meanwhile also ends the run (zero sent).
         """
         started = self.clock()
-        state = self._exchange(tick=0, command_counters=None, give_up=started + startup_timeout)
+        state = self._exchange(tick=0, command=None, give_up=started + startup_timeout)
         if state is None:
             return
         self.node_state = NodeState.RUNNING
         next_status = self.clock()
         while self.running and not self.finished:
-            if max_wall_time is not None and self.clock() - started > max_wall_time:
+            if self.node_state is not NodeState.RUNNING or (
+                max_wall_time is not None and self.clock() - started > max_wall_time
+            ):
+                self.send_zero()
                 return
             output = self._control(state)
-            sent = {self._send_command(output.command, True)}
+            command = self._send_command(output.command, True)
             give_up = self.clock() + LOCKSTEP_GIVE_UP
-            answer = None
+            answer = self._exchange(self.tick, command, give_up=self.clock() + LOCKSTEP_RETRY)
             while answer is None and self.running:
-                answer = self._exchange(self.tick, sent, give_up=self.clock() + LOCKSTEP_RETRY)
-                if answer is not None:
-                    break
                 self.stats.lockstep_retries += 1
                 if self.clock() >= give_up:
                     self.stats.stale_faults += 1
@@ -370,7 +368,8 @@ class ControllerNode:
                     self.send_zero()
                     self._send_status()
                     return
-                sent.add(self._send_command(output.command, True))
+                command = self._send_command(output.command, True)  # same values, new counter
+                answer = self._exchange(self.tick, command, give_up=self.clock() + LOCKSTEP_RETRY)
                 if self.clock() >= next_status:
                     self._send_status()
                     next_status += STATUS_PERIOD
@@ -382,26 +381,24 @@ class ControllerNode:
                 self._send_status()
                 next_status += STATUS_PERIOD
 
-    def _exchange(
-        self, tick: int, command_counters: set[int] | None, give_up: float
-    ) -> JointState | None:
-        """Send StepSync(tick) and wait for a new joint state answering one of the commands."""
+    def _exchange(self, tick: int, command: int | None, give_up: float) -> JointState | None:
+        """Send StepSync(tick) naming ``command`` and wait for the joint state answering it.
+
+        Only an answer echoing the latest command is taken: the plant steps only under a
+        command it received since its last step, and echoes the last command it received.
+        """
         self.state = None
-        command_counter = self.command_counter.value if command_counters else 0
-        step = STEP.encode((command_counter, tick), self.step_counter.next())
         while self.running:
+            step = STEP.encode((command or 0, tick), self.step_counter.next())
             self._send(STEP.frame_id, step)
             resend = min(give_up, self.clock() + LOCKSTEP_RETRY)
             while self.clock() < resend:
                 self.drain(timeout=max(0.0, resend - self.clock()))
                 state = self.state
-                if state is not None and (
-                    command_counters is None or state.echo in command_counters
-                ):
+                if state is not None and (command is None or state.echo == command):
                     return state
             if self.clock() >= give_up:
                 return None
-            step = STEP.encode((command_counter, tick), self.step_counter.next())
         return None
 
     def stop(self) -> None:

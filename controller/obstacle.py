@@ -193,8 +193,9 @@ def measure(
         return absent(sensing_range)
     gx, gy = goal[0] - px, goal[1] - py
     goal_distance = math.hypot(gx, gy)
-    if goal_distance < 1e-9:
-        gx, gy, goal_distance = obstacle.x - px, obstacle.y - py, 1.0
+    if goal_distance < 1e-9:  # on the goal: look at the obstacle instead
+        gx, gy = obstacle.x - px, obstacle.y - py
+        goal_distance = max(math.hypot(gx, gy), 1e-9)
     near = min(max(clearance, 0.0), sensing_range)
     crossings = obstacle.line_crossings(px, py, px + gx, py + gy)
     if crossings is None:

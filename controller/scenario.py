@@ -22,6 +22,7 @@ from controller.planner import Trajectory
 from plant_sim.model import PlantConfig
 from protocol.errors import ConfigError, KinematicsError
 from protocol.kinematics import Elbow, inverse
+from protocol.messages import COMMAND, STATE
 from protocol.robot import RobotConfig
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
@@ -156,7 +157,9 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
 
 
 def check_scenario(scenario: Scenario) -> None:
-    """Every waypoint and the planned path between them must be reachable and free."""
+    """The robot must fit the wire; every waypoint and the planned path between them must be
+    reachable and free."""
+    check_robot_fits_wire(scenario.robot)
     obstacle = scenario.obstacle
     for index, point in enumerate(scenario.waypoints):
         try:
@@ -186,6 +189,29 @@ def check_scenario(scenario: Scenario) -> None:
                 f"waypoints[{segment - 1}..{segment}]",
                 f"the planned path leaves the workspace at t = {t:.3f} s: {error}",
             ) from error
+
+
+def check_robot_fits_wire(robot: RobotConfig) -> None:
+    """Joint limits and speed limits must lie within what the DBC's signals can carry."""
+    lows, highs, speeds = robot.joint_min, robot.joint_max, robot.speed_limits
+    names = ("theta1", "theta2", "d3")
+    for joint, (state, name) in enumerate(zip(STATE, names, strict=True)):
+        position, velocity = state.fields
+        for field_name, value in ((f"{name}_min", lows[joint]), (f"{name}_max", highs[joint])):
+            if not position.minimum <= value <= position.maximum:
+                raise ConfigError(
+                    f"robot.{field_name}",
+                    f"{value:g} is outside what {state.name}.Position carries "
+                    f"[{position.minimum:g}, {position.maximum:g}]",
+                )
+        rate = COMMAND.fields[joint]
+        limit = min(velocity.maximum, -velocity.minimum, rate.maximum, -rate.minimum)
+        if speeds[joint] > limit:
+            raise ConfigError(
+                f"robot.speed_limit_{name}",
+                f"{speeds[joint]:g} is above what {state.name}.Velocity and "
+                f"{COMMAND.name}.{rate.name} carry ({limit:g})",
+            )
 
 
 def _table(document: Mapping[str, Any], name: str) -> Mapping[str, Any]:

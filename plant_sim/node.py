@@ -1,7 +1,8 @@
 """``plant_sim``: the plant simulator process. It owns a bus and integrates the joint model.
 
-Real-time mode: the plant runs on its own monotonic clock. It integrates the joints up to the
-present whenever a valid command arrives and answers at once with the joint state. It also
+Real-time mode: the plant runs on its own monotonic clock and integrates in whole periods.
+When a valid command arrives it brings the joints up to the last whole period, answers at
+once with that joint state, and applies the command from then on. It also
 integrates every period on its own, and sends the state then too while no command comes, so
 a controller that starts later finds it. If no valid command arrives for ``COMMAND_TIMEOUT``
 it brakes to zero.
@@ -98,6 +99,7 @@ class PlantNode:
         )
         self.command: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.command_echo = 0
+        self.command_fresh = False  # lockstep: a command has come since the last step
         self.last_command_time = -float("inf")
         self.model_time = self.clock()
         self.tick = 0
@@ -142,6 +144,7 @@ class PlantNode:
             if self.node_state is NodeState.READY:
                 self.node_state = NodeState.RUNNING
         self.command_echo = counter
+        self.command_fresh = True
         self.last_command_time = self.clock()
         self.stats.commands_applied += 1
         if self.clock_mode is ClockMode.REALTIME:
@@ -152,9 +155,10 @@ class PlantNode:
             return
         if tick == self.tick:
             self._send_state()  # the answer was lost: say it again, without stepping
-        elif tick == self.tick + 1 and command_counter == self.command_echo:
+        elif tick == self.tick + 1 and self.command_fresh and command_counter == self.command_echo:
             self._advance(self.period)
             self.tick = tick
+            self.command_fresh = False
             self._send_state()
         else:
             self.stats.unknown_step_requests += 1
@@ -166,7 +170,8 @@ class PlantNode:
         self.stats.steps += 1
         if any(self.model.at_limit):
             self.fault |= PlantFault.JOINT_LIMIT
-            self.node_state = NodeState.FAULT
+            if self.node_state is not NodeState.ESTOP:
+                self.node_state = NodeState.FAULT
         if self.obstacle is not None:
             x, y, z = forward(self.scenario.robot, *self.model.position)
             inside = z < self.obstacle.height + self.obstacle.inflation and self.obstacle.contains(

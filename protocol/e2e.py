@@ -54,6 +54,7 @@ class E2EMonitor:
 
     counts: E2ECounts = field(default_factory=E2ECounts)
     _last: dict[int, int] = field(default_factory=dict)
+    _stale: dict[int, int] = field(default_factory=dict)
 
     def check(self, frame_id: int, counter: int) -> Check:
         last = self._last.get(frame_id)
@@ -66,6 +67,14 @@ class E2EMonitor:
             self.counts.repeated += 1
             return Check.REPEATED
         if step > MAX_FORWARD_JUMP:
+            # Either an old frame arriving late, or more than MAX_FORWARD_JUMP frames lost.
+            # Two frames in a row that continue each other decide it: the sender has moved on.
+            if self._stale.get(frame_id) == (counter - 1) % COUNTER_MODULO:
+                del self._stale[frame_id]
+                self._last[frame_id] = counter
+                self.counts.ok += 1
+                return Check.OK
+            self._stale[frame_id] = counter
             self.counts.stale += 1
             return Check.STALE
         self._last[frame_id] = counter
@@ -101,9 +110,7 @@ class E2EMonitor:
         """Count a frame that failed to decode (bad CRC, length, ID or range)."""
         self.counts.corrupt += 1
 
-    def forget(self, frame_id: int | None = None) -> None:
-        """Start over for one ID (or all), e.g. when a restarted peer begins again."""
-        if frame_id is None:
-            self._last.clear()
-        else:
-            self._last.pop(frame_id, None)
+    def forget(self) -> None:
+        """Start over, e.g. when a restarted peer begins again."""
+        self._last.clear()
+        self._stale.clear()

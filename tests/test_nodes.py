@@ -75,8 +75,19 @@ def test_alive_counter_classification() -> None:
     assert (counts.repeated, counts.stale, counts.lost) == (1, 1, 2 + 4)
     assert [c.usable for c in (Check.FIRST, Check.OK, Check.LOST)] == [True] * 3
     assert not Check.REPEATED.usable and not Check.STALE.usable
-    monitor.forget(0x100)
+    monitor.forget()
     assert monitor.check(0x100, 3) is Check.FIRST
+
+
+def test_alive_counter_resynchronises_after_a_long_gap() -> None:
+    monitor = E2EMonitor()
+    monitor.check(0x110, 0)
+    # Ten frames lost: 11 looks like an old frame (stale), but 12 continues it, so the
+    # sender has moved on and the receiver follows instead of rejecting everything after.
+    assert [monitor.check(0x110, c) for c in (11, 12, 13)] == [Check.STALE, Check.OK, Check.OK]
+    # A single late frame does not move the receiver back.
+    assert monitor.check(0x110, 10) is Check.STALE
+    assert monitor.check(0x110, 14) is Check.OK
 
 
 def test_fault_spec_parsing_names_the_field() -> None:
@@ -153,6 +164,22 @@ def test_plant_steps_once_per_step_frame_and_only_under_the_named_command(
     again = received(peer)
     assert plant.tick == 1 and plant.model.position == position
     assert [values for _, _, values in again] == [values for _, _, values in first]
+
+
+def test_plant_does_not_step_under_a_command_it_never_received(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    node_bus, peer = buses
+    plant = PlantNode(node_bus, SCENARIO, ClockMode.LOCKSTEP, clock=FakeClock())
+    # The controller's first command (counter 0) was lost; its StepSync names counter 0,
+    # which is also what the plant echoes before any command: it must not step.
+    peer.send(frame(STEP.frame_id, STEP.encode((0, 1), 0)))
+    deliver(node_bus, plant)
+    assert plant.tick == 0 and plant.stats.steps == 0
+    peer.send(frame(COMMAND.frame_id, COMMAND.encode((1, 1.0, 0.0, 0.0), 1)))
+    peer.send(frame(STEP.frame_id, STEP.encode((1, 1), 1)))
+    deliver(node_bus, plant)
+    assert plant.tick == 1 and plant.stats.steps == 1
 
 
 def test_plant_latches_emergency_stop(buses: tuple[can.BusABC, can.BusABC]) -> None:

@@ -72,6 +72,8 @@ def _set(path: list[Any], value: Any) -> Any:
         (_set(["controller"], {"gain": 1.0}), "controller.gain"),
         (_set(["robot"], {"a1": -1.0}), "robot.a1"),
         (_set(["plant"], {"substeps": 0}), "plant.substeps"),
+        (_set(["robot"], {"speed_limit_theta2": 20.0}), "robot.speed_limit_theta2"),
+        (_set(["robot"], {"theta1_max_deg": 200.0}), "robot.theta1_max"),
         (_set(["speed"], 3), "speed"),
     ],
 )
