@@ -13,9 +13,10 @@ from protocol.errors import ConfigError
 class ControllerConfig:
     """Everything the control law is tuned by (SI units; rates in Hz).
 
-    PT tracks the planned cubic with a unicycle law: the wanted planar velocity is the
-    reference velocity plus ``position_gain`` times the position error; the heading follows
-    its direction with ``heading_gain``. AO is the paper's eq. 28-29 with
+    PT tracks the planned cubic with a unicycle law (see ``behaviours.plan_tracking``): the
+    speed is the planned speed plus ``position_gain`` times the lag along the path, and the
+    heading aims back at the path with ``heading_gain``; speed is capped at ``speed_max``.
+    AO is the paper's eq. 28-29 with
     ``f_vA(s) = ao_speed_min + (ao_speed_max - ao_speed_min) tanh(max(s, 0) / ao_speed_distance)``
     and ``f_omegaA(s) = ao_turn_max tanh(s / ao_turn_scale)``, steering at the edge of the
     obstacle grown by ``ao_pass_margin``.

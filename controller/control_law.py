@@ -154,8 +154,8 @@ class ControlLaw:
     def _limit(self, wanted: tuple[float, float, float]) -> tuple[tuple[float, float, float], bool]:
         """Joint speed, then acceleration limits, each by one common scale factor.
 
-        Scaling all joints together keeps the direction the TCP moves in, unlike clipping
-        each joint on its own.
+        Scaling all joints together keeps the direction the TCP moves in (speed limit) and the
+        direction of the change (acceleration limit), unlike clipping each joint on its own.
         """
         scale = 1.0
         for rate, limit in zip(wanted, self._speed_limits, strict=True):

@@ -251,7 +251,7 @@ class ControllerNode:
             int(self.fault),
             flags,
             self.monitor.counts.bad,
-            self.stats.deadline_misses,
+            min(self.stats.deadline_misses, 0xFFFF),
         )
         self._send(CONTROLLER_STATUS.frame_id, data)
 

@@ -228,7 +228,7 @@ class PlantNode:
             int(self.fault),
             flags,
             self.monitor.counts.bad,
-            self.stats.steps,
+            self.stats.steps & 0xFFFF,
         )
         self._send(PLANT_STATUS.frame_id, data)
 

@@ -99,7 +99,8 @@ def encode_status(
     bad: int,
     extra: int,
 ) -> bytes:
-    return codec.encode((int(state), fault, flags, min(bad, 0xFFFF), extra & 0xFFFF), counter)
+    """``bad`` saturates at the field's maximum; ``extra`` must already fit 16 bits."""
+    return codec.encode((int(state), fault, flags, min(bad, 0xFFFF), extra), counter)
 
 
 def decode_status(values: Sequence[float]) -> Status:
