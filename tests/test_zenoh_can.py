@@ -23,6 +23,7 @@ from pathlib import Path
 import can
 import pytest
 import zenoh
+from conftest import free_port
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -57,18 +58,6 @@ needs_entry_point = pytest.mark.skipif(
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def free_port() -> int:
-    """A TCP port nobody holds right now on 127.0.0.1."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
-@pytest.fixture
-def port() -> int:
-    return free_port()
 
 
 @pytest.fixture
