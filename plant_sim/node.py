@@ -288,8 +288,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         node.run(args.duration)
     finally:
-        setup.bus.shutdown()
-        if args.stats:
+        if args.stats:  # before closing the bus, which may take a while to flush
             report = {
                 "stats": asdict(node.stats),
                 "e2e": asdict(node.monitor.counts),
@@ -298,6 +297,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "injected": asdict(setup.injector.counts) if setup.injector else None,
             }
             args.stats.write_text(json.dumps(report, indent=2) + "\n")
+        setup.bus.shutdown()
     return 0
 
 
