@@ -17,17 +17,14 @@ Wire format
     frames silently under load). A sample on the key that does not decode is counted in
     :attr:`ZenohBus.rx_malformed` and dropped.
 
-Topology (no multicast)
+Topology (no multicast, no router)
     Each bus first tries to *listen* on the well-known ``tcp/HOST:PORT`` (default
-    ``tcp/127.0.0.1:17447``), as a Zenoh *router*. If that port is already in use, the bus
-    *connects* to it as a peer and also listens on ``tcp/HOST:0`` (an ephemeral port), so
-    processes may start in any order. The router carries frames between the buses that joined
-    it; Zenoh's gossip over the existing links also tells every peer about every other, and
-    they link directly when they can. Routing matters with three or more buses: with peers
-    only, two buses joining at about the same time failed to link to each other within
-    seconds in half of the trials here (a frame from one never reached the other); through the
-    router, 1 in 8. When the holder leaves, buses that linked directly stay linked, and Zenoh
-    keeps retrying the well-known port so a newcomer that takes it over is joined again.
+    ``tcp/127.0.0.1:17447``). If that port is already in use, the bus *connects* to it and also
+    listens on ``tcp/HOST:0`` (an ephemeral port); Zenoh's gossip over the existing TCP links
+    then tells every peer about every other, so processes may start in any order. The
+    well-known holder is not special once the mesh has formed: when it leaves, the others stay
+    linked to each other, and Zenoh keeps retrying the well-known port so a newcomer that takes
+    it over is joined again.
 
     "Port in use" is taken from Zenoh's own listener error (EADDRINUSE), not from a separate
     probe: binding is atomic, so two buses starting at the same instant cannot both win. The
@@ -324,9 +321,7 @@ def session_config(
     host = _check_host(host, allow_remote=True)  # a guard: never a wildcard or a group
     local = host if listen_host is None else _check_host(listen_host, allow_remote=True)
     return {
-        # The bus holding the well-known port is a router, so frames reach every bus through
-        # it even before (or without) gossip linking the others to each other directly.
-        "mode": "peer" if connect_port is not None else "router",
+        "mode": "peer",
         "scouting/multicast/enabled": False,
         "scouting/gossip/enabled": True,
         "scouting/delay": 0,
@@ -557,7 +552,7 @@ class ZenohBus(can.BusABC):
         """How many other Zenoh sessions (buses, tools, bridges) this bus is linked to now."""
         if self._is_shutdown:
             return 0
-        return _linked(self._session)
+        return len(self._session.info.peers_zid())
 
     def flush_tx_buffer(self) -> None:
         """Nothing to discard: Zenoh owns its queues."""
@@ -635,16 +630,11 @@ def _undeclare(entity: Any) -> None:
     entity.undeclare()
 
 
-def _linked(session: zenoh.Session) -> int:
-    """How many other sessions this one has a link to (peers, and the router if joined)."""
-    return len(session.info.peers_zid()) + len(session.info.routers_zid())
-
-
 def _wait_for_peer(session: zenoh.Session, timeout: float) -> bool:
     """True once the session is linked to at least one peer, polled until ``timeout``."""
     deadline = time.monotonic() + timeout
     while True:
-        if _linked(session):
+        if session.info.peers_zid():
             return True
         if time.monotonic() >= deadline:
             return False
@@ -654,10 +644,10 @@ def _wait_for_peer(session: zenoh.Session, timeout: float) -> bool:
 def _settle(session: zenoh.Session, quiet: float) -> None:
     """Wait until no new peer has appeared for ``quiet`` s (gossip links the rest of the mesh)."""
     deadline = time.monotonic() + _SETTLE_LIMIT
-    seen = _linked(session)
+    seen = len(session.info.peers_zid())
     calm_since = time.monotonic()
     while time.monotonic() < deadline and time.monotonic() - calm_since < quiet:
         time.sleep(0.002)
-        now_seen = _linked(session)
+        now_seen = len(session.info.peers_zid())
         if now_seen != seen:
             seen, calm_since = now_seen, time.monotonic()

@@ -248,13 +248,11 @@ def test_decoding_rejects_malformed_payloads(payload: bytes) -> None:
 @pytest.mark.parametrize(
     ("listen_port", "connect_port"), [(17447, None), (0, 17447)], ids=["listener", "joiner"]
 )
-def test_session_config_has_no_multicast_and_is_loopback_only(
+def test_session_config_is_peer_without_multicast_and_loopback_only(
     listen_port: int, connect_port: int | None
 ) -> None:
     settings_ = session_config("127.0.0.1", listen_port, connect_port)
-    # The holder of the well-known port routes between the others; joiners are peers.
-    mode = "router" if connect_port is None else "peer"
-    assert settings_["mode"] == mode
+    assert settings_["mode"] == "peer"
     assert settings_["scouting/multicast/enabled"] is False
     assert settings_["listen/endpoints"] == [f"tcp/127.0.0.1:{listen_port}"]
     expected_connect = [] if connect_port is None else [f"tcp/127.0.0.1:{connect_port}"]
@@ -264,7 +262,7 @@ def test_session_config_has_no_multicast_and_is_loopback_only(
         assert forbidden not in text
     # What Zenoh itself reads back from the built configuration:
     config = build_zenoh_config(settings_)
-    assert json.loads(config.get_json("mode")) == mode
+    assert json.loads(config.get_json("mode")) == "peer"
     assert json.loads(config.get_json("scouting/multicast/enabled")) is False
     assert json.loads(config.get_json("listen/endpoints")) == settings_["listen/endpoints"]
     assert json.loads(config.get_json("connect/endpoints")) == expected_connect
