@@ -72,7 +72,7 @@ def run_launcher(arguments: list[str], out: Path, timeout: float) -> dict[str, A
     """Run scara-run with ``arguments`` on a fresh Zenoh port; return the controller's result."""
     command = [sys.executable, "-m", "controller.launch", *arguments, "--out", str(out)]
     command += ["--interface", "zenoh", "--channel", "bench"]
-    command += ["--bus-option", f"port={free_port()}"]
+    command += ["--bus-option", f"port={free_port()}", "--bus-option", "lowlatency=true"]
     launcher = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         launcher.wait(timeout)

@@ -86,11 +86,7 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def open_bus(interface: str | None, channel: str | None, options: dict[str, Any]) -> can.BusABC:
-    """A node's bus. On Zenoh the nodes ask for the low-latency transport unless told not to
-    (``--bus-option lowlatency=false``): a control loop wants round trips short."""
     resolved_interface, resolved_channel = resolve_transport(interface, channel)
-    if resolved_interface == "zenoh":
-        options = {"lowlatency": True} | options
     return can.Bus(interface=resolved_interface, channel=resolved_channel, **options)
 
 

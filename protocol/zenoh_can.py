@@ -315,8 +315,10 @@ def session_config(
     whose connect is stuck in a handshake with a program that is not Zenoh cannot close
     before it expires (close() raised "close operation timed out" after 10 s).
     ``lowlatency`` asks for Zenoh's low-latency unicast transport (which has no QoS
-    priorities, so QoS is switched off with it): about 15 % less round-trip time here. Peers
-    that did not ask for it still link with it, over the ordinary transport.
+    priorities, so QoS is switched off with it): about 15 % less round-trip time here, and at
+    1 kHz 99.85 % instead of 96-97 % of commands answered within a tick. Peers that did not
+    ask for it still link with it, over the ordinary transport. It is off by default because
+    three buses formed their mesh less reliably with it here (6 of 8 trials against 8 of 8).
     """
     host = _check_host(host, allow_remote=True)  # a guard: never a wildcard or a group
     local = host if listen_host is None else _check_host(listen_host, allow_remote=True)
