@@ -11,7 +11,7 @@ from enum import Enum
 from typing import Protocol
 
 from controller.fuzzy import FuzzyInference, RuleBase
-from controller.obstacle import ObstacleMeasurement
+from controller.obstacle import ObstacleMeasurement, absent
 
 # How far ahead an obstacle is, as the cosine of the angle between "towards p_j" and
 # "towards the obstacle": AO counts fully above AHEAD_FULL and not at all below AHEAD_NONE,
@@ -41,14 +41,17 @@ class FuzzyCoordinator:
     def __init__(self, sensing_range: float, rule_base: RuleBase | None = None) -> None:
         self.sensing_range = sensing_range
         self.inference = FuzzyInference(rule_base or RuleBase.load())
+        nothing = absent(sensing_range)
+        self._k_t_without_obstacle = self.inference.weights(nothing.min_distance, nothing.beta)[0]
 
     def weights(self, measurement: ObstacleMeasurement) -> tuple[float, float]:
+        if not measurement.present:  # the inputs of "no obstacle" never change: k_C is 0
+            return self._k_t_without_obstacle, 0.0
         k_t, k_c = self.inference.weights(measurement.min_distance, measurement.beta)
         return k_t, k_c * self.relevance(measurement)
 
     def relevance(self, measurement: ObstacleMeasurement) -> float:
-        if not measurement.present:
-            return 0.0
+        """How much a present obstacle matters, 0..1 (see the class docstring)."""
         half = self.sensing_range / 2.0
         relevance = smoothstep((self.sensing_range - measurement.min_distance) / half)
         if measurement.clearance > 0.0:

@@ -156,7 +156,6 @@ class ObstacleMeasurement:
     d_right: float
     beta: float
     blocked: bool
-    nearest: Point | None
     ahead: float
 
     @property
@@ -173,7 +172,6 @@ def absent(sensing_range: float) -> ObstacleMeasurement:
         d_right=sensing_range,
         beta=math.pi,
         blocked=False,
-        nearest=None,
         ahead=-1.0,
     )
 
@@ -220,7 +218,7 @@ def measure(
         beta = min(abs(left), abs(right))
         if left > 0.0 > right:
             beta = -beta
-    return ObstacleMeasurement(True, clearance, d_left, d_right, beta, blocked, nearest, ahead)
+    return ObstacleMeasurement(True, clearance, d_left, d_right, beta, blocked, ahead)
 
 
 def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Point]:
