@@ -7,6 +7,13 @@ every other signal is byte-aligned little-endian of 8, 16, 24 or 32 bits. A DBC 
 from that shape is refused here rather than encoded wrongly. Tests check every message
 against cantools' own decoding of the same file.
 
+Frames are read and written by name: each message has a record type (a named tuple whose
+fields are the message's signals, named as in the DBC, Crc and Counter left out) that
+:meth:`MessageCodec.decode` returns and :meth:`MessageCodec.encode` takes. Enumerations and
+the bits of flag fields are the DBC's value tables, turned into Python enums by
+:meth:`Wire.enum`, and send schedules its ``GenMsgCycleTime`` and ``ScaraSchedule``
+attributes.
+
 Encoding is strict, as in cantools: a value outside its signal's DBC range raises
 :class:`EncodeError`. Decoding raises :class:`DecodeError` for an unknown ID, a wrong length,
 a bad CRC or a value outside its range.
@@ -14,8 +21,10 @@ a bad CRC or a value outside its range.
 
 from __future__ import annotations
 
+import enum
 import math
 import struct
+from collections import namedtuple
 from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -86,13 +95,20 @@ _FORMATS |= {(32, False): "I", (32, True): "i", (24, False): "HB", (24, True): "
 
 
 class MessageCodec:
-    """Encoder and decoder of one message; ``values`` are its signals after Crc and Counter,
-    in the order they sit in the frame (see :attr:`signal_names`)."""
+    """Encoder and decoder of one message.
 
-    def __init__(self, message: Any) -> None:
+    ``Record`` is the message's named tuple: its fields are the signals after Crc and
+    Counter (see :attr:`signal_names`), in the order they sit in the frame.
+    """
+
+    def __init__(self, message: Any, schedule: str) -> None:
         self.name: str = message.name
         self.frame_id: int = message.frame_id
         self.length: int = message.length
+        self.schedule = schedule
+        """``event``, ``tick`` (every control tick), ``lockstep_tick`` or ``cyclic``."""
+        self.cycle_time: float | None = message.cycle_time / 1000 if message.cycle_time else None
+        """s between frames (for ``tick`` messages: at the default control rate)."""
         specs = sorted(
             (
                 SignalSpec(
@@ -132,9 +148,15 @@ class MessageCodec:
         if position != self.length * 8:
             raise ValueError(f"{self.name}: signals cover {position} bits of {self.length * 8}")
         self.struct = struct.Struct(fmt)
-        self.fields: tuple[SignalSpec, ...] = tuple(rest)
-        self.signals: tuple[SignalSpec, ...] = ((self.aux,) if self.aux else ()) + self.fields
+        self.signals: tuple[SignalSpec, ...] = ((self.aux,) if self.aux else ()) + tuple(rest)
         self.signal_names = tuple(spec.name for spec in self.signals)
+        self.spec = {spec.name: spec for spec in self.signals}
+        self.choices: dict[str, dict[int, str]] = {
+            s.name: {int(value): str(label) for value, label in s.choices.items()}
+            for s in message.signals
+            if s.choices
+        }
+        self.Record: Any = namedtuple(self.name, self.signal_names)  # type: ignore[misc]
         for spec in self.signals:
             low, high = spec.raw_range
             bits = spec.length
@@ -148,10 +170,15 @@ class MessageCodec:
             for spec in self.signals
         )
         self._limits = tuple((spec.minimum, spec.maximum) for spec in self.signals)
+        self._make = tuple.__new__
 
-    def encode(self, values: Sequence[float], counter: int) -> bytes:
-        """The frame's bytes for ``values`` (physical units) and alive ``counter``."""
-        if len(values) != len(self._plan):
+    def record(self, **fields: float) -> Any:
+        """The message's record from its fields by name (every field must be given)."""
+        return self.Record(**fields)
+
+    def encode(self, record: Sequence[float], counter: int) -> bytes:
+        """The frame's bytes for ``record`` (physical units) and alive ``counter``."""
+        if len(record) != len(self._plan):
             raise EncodeError(f"{self.name}: expected {len(self._plan)} values {self.signal_names}")
         if not 0 <= counter < COUNTER_MODULO:
             raise EncodeError(f"{self.name}.Counter: {counter} outside [0, {COUNTER_MODULO - 1}]")
@@ -160,7 +187,7 @@ class MessageCodec:
             value,
             (scale, offset, low, high, wide, integer),
             (minimum, maximum),
-        ) in enumerate(zip(values, self._plan, self._limits, strict=True)):
+        ) in enumerate(zip(record, self._plan, self._limits, strict=True)):
             if not minimum <= value <= maximum:  # also false for NaN
                 name = f"{self.name}.{self.signal_names[index]}"
                 raise EncodeError(f"{name}: {value!r} outside [{minimum:g}, {maximum:g}]")
@@ -182,8 +209,8 @@ class MessageCodec:
         body[0] = crc8(self.frame_id, memoryview(body)[1:])
         return bytes(body)
 
-    def decode(self, data: bytes | bytearray) -> tuple[int, tuple[float, ...]]:
-        """``(counter, values)`` of a frame; :class:`DecodeError` if it is not valid."""
+    def decode(self, data: bytes | bytearray) -> tuple[int, Any]:
+        """``(counter, record)`` of a frame; :class:`DecodeError` if it is not valid."""
         if len(data) != self.length:
             raise DecodeError(self.frame_id, f"{self.name} has DLC {self.length}, got {len(data)}")
         if crc8(self.frame_id, memoryview(data)[1:]) != data[0]:
@@ -209,7 +236,7 @@ class MessageCodec:
                     self.frame_id, f"{self.name}.{self.signal_names[index]}: raw {raw} out of range"
                 )
             values.append(raw if integer else raw * scale + offset)
-        return second & 0x0F, tuple(values)
+        return second & 0x0F, self._make(self.Record, values)
 
 
 class Wire:
@@ -217,21 +244,46 @@ class Wire:
 
     def __init__(self, dbc_text: str = DBC_TEXT) -> None:
         database: Any = cantools.database.load_string(dbc_text, database_format="dbc")
-        self.messages = {m.name: MessageCodec(m) for m in database.messages}
+        definition = database.dbc.attribute_definitions.get("ScaraSchedule")
+        self.messages = {
+            m.name: MessageCodec(m, _schedule(m, definition)) for m in database.messages
+        }
         self.by_id = {codec.frame_id: codec for codec in self.messages.values()}
 
     def __getitem__(self, name: str) -> MessageCodec:
         return self.messages[name]
 
-    def decode(
-        self, frame_id: int, data: bytes | bytearray
-    ) -> tuple[MessageCodec, int, tuple[float, ...]]:
+    def decode(self, frame_id: int, data: bytes | bytearray) -> tuple[MessageCodec, int, Any]:
         """Decode a frame of any message; :class:`DecodeError` for an unknown ID too."""
         codec = self.by_id.get(frame_id)
         if codec is None:
             raise DecodeError(frame_id, "unknown frame ID")
-        counter, values = codec.decode(data)
-        return codec, counter, values
+        counter, record = codec.decode(data)
+        return codec, counter, record
+
+    def enum(self, name: str, *signals: tuple[str, str], flag: bool = False) -> Any:
+        """An ``IntEnum`` (or ``IntFlag``) from the value table of ``(message, signal)``.
+
+        Members are the table's labels in upper case. Several signals may share one
+        enumeration: their tables must then be the same.
+        """
+        tables = [self[message].choices[signal] for message, signal in signals]
+        if any(table != tables[0] for table in tables):
+            raise ValueError(f"{name}: the value tables of {signals} differ")
+        members = {label.upper(): value for value, label in sorted(tables[0].items())}
+        if flag:
+            return enum.IntFlag(name, members)
+        return enum.IntEnum(name, members)
+
+
+def _schedule(message: Any, definition: Any) -> str:
+    """The message's ``ScaraSchedule`` attribute; ``event`` where the DBC has none."""
+    if definition is None:
+        return "event"
+    attribute = message.dbc.attributes.get("ScaraSchedule") if message.dbc else None
+    if attribute is None:
+        return str(definition.default_value)
+    return str(definition.choices[attribute.value])
 
 
 WIRE = Wire()

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
 
 import can
 
@@ -86,8 +87,9 @@ class E2EMonitor:
 
     def accept(
         self, message: can.Message, wanted: set[int]
-    ) -> tuple[MessageCodec, int, tuple[float, ...]] | None:
-        """A received frame, decoded, if it may be acted on; None otherwise.
+    ) -> tuple[MessageCodec, int, Any] | None:
+        """A received frame, decoded (codec, counter, record), if it may be acted on; None
+        otherwise.
 
         Frames this node does not listen to (other IDs, extended, remote, error frames) are
         passed over; ones that fail to decode are counted as corrupt; ones whose counter is
@@ -98,13 +100,13 @@ class E2EMonitor:
         if message.arbitration_id not in wanted:
             return None
         try:
-            codec, counter, values = WIRE.decode(message.arbitration_id, message.data)
+            codec, counter, record = WIRE.decode(message.arbitration_id, message.data)
         except DecodeError:
             self.corrupt()
             return None
         if not self.check(codec.frame_id, counter).usable:
             return None
-        return codec, counter, values
+        return codec, counter, record
 
     def corrupt(self) -> None:
         """Count a frame that failed to decode (bad CRC, length, ID or range)."""

@@ -16,19 +16,19 @@ from __future__ import annotations
 import math
 import struct
 from itertools import combinations
-from pathlib import Path
 from typing import Any
 
 import cantools
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support import ROOT
 
 from protocol.codec import WIRE, MessageCodec, SignalSpec, Wire, crc8
+from protocol.config import RobotConfig
 from protocol.errors import DecodeError, EncodeError
-from protocol.robot import RobotConfig
 
-DBC_PATH = Path(__file__).resolve().parent.parent / "protocol" / "scara.dbc"
+DBC_PATH = ROOT / "protocol" / "scara.dbc"
 DB: Any = cantools.database.load_file(str(DBC_PATH))
 CODECS = list(WIRE.messages.values())
 IDS = [codec.name for codec in CODECS]
@@ -426,3 +426,54 @@ def test_struct_layout_is_little_endian() -> None:
     codec = WIRE["JointVelocityCommand"]
     frame = with_crc(codec.frame_id, struct.pack("<BBhhh", 0, 0x14, -1000, 2000, 300))
     assert codec.encode([1, -1.0, 2.0, 0.03], 4) == frame
+
+
+# --- frames by name ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("codec", CODECS, ids=IDS)
+def test_records_are_named_as_in_the_dbc(codec: MessageCodec) -> None:
+    message = DB.get_message_by_name(codec.name)
+    in_frame_order = sorted(message.signals, key=lambda signal: signal.start)
+    names = [s.name for s in in_frame_order if s.name not in ("Crc", "Counter")]
+    assert list(codec.Record._fields) == names
+    values = mid_values(codec)
+    by_name = codec.record(**dict(zip(names, values, strict=True)))
+    assert codec.encode(by_name, 3) == codec.encode(values, 3)
+    counter, decoded = codec.decode(codec.encode(by_name, 3))
+    assert counter == 3 and type(decoded) is codec.Record
+    for name in names:
+        assert_same(codec.spec[name], getattr(decoded, name), getattr(by_name, name))
+    with pytest.raises(TypeError):
+        codec.record(**dict(zip(names[1:], values[1:], strict=True)))  # every field is needed
+
+
+def test_enumerations_are_the_dbcs_value_tables() -> None:
+    from protocol.messages import ControllerFault, NodeState, PlantFlag, Request
+
+    state = DB.get_message_by_name("ControllerStatus").get_signal_by_name("State").choices
+    assert {member.value: member.name for member in NodeState} == {
+        int(value): str(label).upper() for value, label in state.items()
+    }
+    faults = DB.get_message_by_name("ControllerStatus").get_signal_by_name("FaultCode").choices
+    assert {member.value: member.name for member in ControllerFault} == {
+        int(value): str(label).upper() for value, label in faults.items()
+    }
+    assert all(bin(member.value).count("1") == 1 for member in ControllerFault)
+    assert PlantFlag.COLLISION | PlantFlag.D3_AT_STOP == 9
+    assert Request.RESET == 1 and NodeState.HOLD.name == "HOLD"
+
+
+def test_a_shared_enumeration_whose_tables_differ_is_refused() -> None:
+    text = DBC_PATH.read_text().replace('VAL_ 1793 State 0 "init"', 'VAL_ 1793 State 0 "booting"')
+    wire = Wire(text)
+    with pytest.raises(ValueError, match="differ"):
+        wire.enum("NodeState", ("ControllerStatus", "State"), ("PlantStatus", "State"))
+
+
+def test_send_schedules_come_from_the_dbc_attributes() -> None:
+    assert WIRE["JointVelocityCommand"].schedule == "tick"
+    assert WIRE["StepSync"].schedule == "lockstep_tick"
+    assert WIRE["ControllerStatus"].schedule == "cyclic"
+    assert WIRE["ControllerStatus"].cycle_time == pytest.approx(0.1)
+    assert WIRE["EmergencyStop"].schedule == "event" and WIRE["EmergencyStop"].cycle_time is None
