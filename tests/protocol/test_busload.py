@@ -1,12 +1,22 @@
-"""Bus load: the worst-case frame length, the schedule, and the scara-busload report."""
+"""Bus load (the ``protocol.busload`` package): the worst-case frame length, the schedule
+taken from the DBC's attributes, the lower bound, and the scara-busload report."""
 
 from __future__ import annotations
+
+from typing import Any
 
 import cantools
 import pytest
 
-from protocol import busload
-from protocol.busload import bus_load, frame_bits, max_rate_hz, minimum_load, quantity_bits
+from protocol.busload.bound import minimum_load, quantity_bits
+from protocol.busload.load import bus_load, frame_bits, max_rate_hz
+from protocol.busload.report import main
+from protocol.codec import DBC_TEXT
+
+DATABASE: Any = cantools.database.load_string(DBC_TEXT, database_format="dbc")
+DLC = {m.name: m.length for m in DATABASE.messages}
+PER_TICK = ("JointVelocityCommand", "JointState1", "JointState2", "JointState3")
+STATUS = ("ControllerStatus", "PlantStatus")
 
 
 def test_frame_bits_by_hand() -> None:
@@ -27,29 +37,31 @@ def test_frame_bits_by_hand() -> None:
 
 
 def test_every_dbc_message_is_counted_with_its_dlc() -> None:
-    database = cantools.database.load_string(busload.DBC_TEXT, database_format="dbc")
-    assert isinstance(database, cantools.database.can.Database)
-    dlcs = {m.name: m.length for m in database.messages}
     load = bus_load(500.0)
-    assert {f.name: f.dlc for f in load.frames} == dlcs
+    assert {f.name: f.dlc for f in load.frames} == DLC
     assert all(f.bits == frame_bits(f.dlc) for f in load.frames)
 
 
-def test_schedule() -> None:
-    scheduled = busload.PER_TICK + busload.LOCKSTEP_PER_TICK + busload.STATUS
-    assert set(scheduled) <= set(busload.DLC_BY_NAME)  # a renamed message is not lost
+def test_schedule_is_the_dbcs_cycle_time_attributes() -> None:
     rate = 500.0
     per_second = {f.name: f.frames_per_s for f in bus_load(rate).frames}
-    for name in busload.PER_TICK:
-        assert per_second[name] == rate
-    assert per_second["StepSync"] == 0.0
+    for message in DATABASE.messages:
+        schedule = message.dbc.attributes.get("ScaraSchedule")
+        kind = schedule.definition.choices[schedule.value] if schedule else "event"
+        if kind == "tick":
+            assert message.cycle_time == 1000 / rate  # the default rate's period, in ms
+            assert per_second[message.name] == rate
+        elif kind == "cyclic":
+            assert per_second[message.name] == 1000 / message.cycle_time
+        else:  # events, and the lockstep-only StepSync in real time
+            assert per_second[message.name] == 0.0
+    assert set(PER_TICK) <= {name for name, hz in per_second.items() if hz == rate}
     assert per_second["ControllerStatus"] == per_second["PlantStatus"] == 10.0
-    assert per_second["EmergencyStop"] == 0.0
 
 
 def test_load_scales_linearly_with_rate() -> None:
-    per_tick = sum(frame_bits(busload.DLC_BY_NAME[name]) for name in busload.PER_TICK)
-    status = 10.0 * sum(frame_bits(busload.DLC_BY_NAME[name]) for name in busload.STATUS)
+    per_tick = sum(frame_bits(DLC[name]) for name in PER_TICK)
+    status = 10.0 * sum(frame_bits(DLC[name]) for name in STATUS)
     for rate in (100.0, 250.0, 500.0, 1000.0, 2000.0):
         load = bus_load(rate)
         assert load.bits_per_s == pytest.approx(per_tick * rate + status)
@@ -72,7 +84,7 @@ def test_real_time_load_at_500_hz_is_under_30_percent() -> None:
     assert bus_load(500.0).fraction < 0.30
     # The known shortfall: four frames every tick, about 51 % at 1 kHz.
     assert bus_load(1000.0).fraction == pytest.approx(0.5127)
-    rate = max_rate_hz()
+    rate = max_rate_hz(0.30)
     assert bus_load(rate).fraction == pytest.approx(0.30)
 
 
@@ -107,13 +119,11 @@ def test_minimum_load_by_hand() -> None:
     assert minimum.fraction(1000.0, stuffing=False) == pytest.approx(0.388)
     assert minimum.fraction(1000.0, stuffing=False) > 0.30  # 1 kHz cannot reach 30 %
     assert minimum.fraction(500.0) < 0.30
-    assert minimum.bits_per_tick <= sum(
-        frame_bits(busload.DLC_BY_NAME[name]) for name in busload.PER_TICK
-    )
+    assert minimum.bits_per_tick <= sum(frame_bits(DLC[name]) for name in PER_TICK)
 
 
 def test_main_prints_a_table_and_exits_0(capsys: pytest.CaptureFixture[str]) -> None:
-    assert busload.main([]) == 0
+    assert main([]) == 0
     out = capsys.readouterr().out
     table = [line for line in out.splitlines() if line.startswith("| ")]
     assert table[0].startswith("| Frame | ID | DLC | Bits | Schedule | 500 Hz")
@@ -123,16 +133,16 @@ def test_main_prints_a_table_and_exits_0(capsys: pytest.CaptureFixture[str]) -> 
     assert "Under 30.0 %: 500 Hz; at or above: 1000 Hz." in out
     assert "1000 Hz: at least 47.0 %" in out
 
-    assert busload.main(["--rate", "250", "--bitrate", "500000", "--lockstep"]) == 0
+    assert main(["--rate", "250", "--bitrate", "500000", "--lockstep"]) == 0
     out = capsys.readouterr().out
     assert "lockstep mode, 500 kbit/s" in out and "250 Hz: frames/s" in out
 
 
 def test_help_and_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as info:
-        busload.main(["--help"])
+        main(["--help"])
     assert info.value.code == 0
     assert "bus load" in capsys.readouterr().out
     with pytest.raises(SystemExit) as info:
-        busload.main(["--rate", "-5"])
+        main(["--rate", "-5"])
     assert info.value.code == 2
