@@ -1,0 +1,157 @@
+"""Zenoh session settings of the CAN-over-Zenoh transport: one router, every bus its client.
+
+Topology (measured in ``docs/transport.md``): a router process (``scara-router``) listens on
+the well-known ``tcp/127.0.0.1:17447``; every bus is a Zenoh *client* of it and listens on
+nothing. Frames go bus -> router -> bus over TCP, one path per sender, so each sender's
+frames arrive in order; no bus depends on another bus or on gossip, so any bus may start,
+die and restart at any time, and the router may restart too (clients reconnect to it).
+
+Loopback only by default: ``host`` must be a loopback address unless ``allow_remote`` is
+given, and never a wildcard or multicast address. Multicast scouting is always off and every
+endpoint explicit. The settings are plain ``path -> JSON value`` dicts (pure, so tests can
+read them) turned into a :class:`zenoh.Config` by :func:`build_zenoh_config`.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import re
+from typing import Any, Final
+
+import can
+import zenoh
+
+DEFAULT_CHANNEL: Final = "scara"
+DEFAULT_HOST: Final = "127.0.0.1"
+DEFAULT_PORT: Final = 17447
+KEY_PREFIX: Final = "scara/can/"
+FLUSH_PREFIX: Final = "scara/canflush/"  # the flush barrier's queryables, beside the frames
+
+HANDSHAKE_MS: Final = 2000
+"""Zenoh's is 10 s: a session whose handshake with a program that is not Zenoh is stuck
+cannot close before it expires."""
+
+_FORBIDDEN_IN_CHANNEL: Final = re.compile(r"[*$#?@\s\x00-\x1f\x7f]")
+_HOSTNAME: Final = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]*[A-Za-z0-9])?(\.[A-Za-z0-9-]+)*$")
+
+
+def key_for_channel(channel: object) -> str:
+    """The Zenoh key of a channel; raise CanInitializationError for a name that is not one."""
+    if isinstance(channel, int) and not isinstance(channel, bool):
+        channel = str(channel)  # python-can casts CAN_CHANNEL=1 to an int
+    if not isinstance(channel, str) or not channel:
+        raise can.CanInitializationError(
+            f"zenoh channel must be a non-empty string, got {channel!r}"
+        )
+    bad = _FORBIDDEN_IN_CHANNEL.search(channel)
+    if bad:
+        raise can.CanInitializationError(
+            f"zenoh channel {channel!r} contains {bad.group()!r}: "
+            "wildcards, '$', '#', '?', '@', spaces and control characters are not allowed"
+        )
+    key = KEY_PREFIX + channel
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as exc:
+        raise can.CanInitializationError(
+            f"zenoh channel {channel!r} does not make a valid key ({key!r}): {exc}"
+        ) from None
+    return key
+
+
+def check_host(value: object, *, allow_remote: bool, name: str = "host") -> str:
+    """Normalise an address; loopback only unless allow_remote, never a wildcard or group."""
+    if not isinstance(value, str) or not value.strip():
+        raise can.CanInitializationError(f"zenoh {name} must be an explicit address, got {value!r}")
+    text = value.strip()
+    bare = text[1:-1] if text.startswith("[") and text.endswith("]") else text
+    if bare.lower() == "localhost":
+        return DEFAULT_HOST
+    try:
+        address = ipaddress.ip_address(bare)
+    except ValueError:
+        address = None
+    if address is not None:
+        if address.is_unspecified or address.is_multicast:
+            raise can.CanInitializationError(
+                f"zenoh {name} {value!r} is not an explicit unicast address "
+                "(wildcard and multicast addresses are refused)"
+            )
+        if address.is_loopback:
+            return str(address)
+    elif not _HOSTNAME.match(bare):
+        raise can.CanInitializationError(f"zenoh {name} {value!r} is not an address or host name")
+    if not allow_remote:
+        raise can.CanInitializationError(
+            f"zenoh {name} {value!r} is not a loopback address (127.x.x.x, ::1, localhost); "
+            "pass allow_remote=True to use another address on purpose"
+        )
+    return bare
+
+
+def check_port(port: object) -> int:
+    """A TCP port number, 1..65535."""
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
+        raise can.CanInitializationError(f"zenoh port must be in 1..65535, got {port!r}")
+    return port
+
+
+def endpoint(host: str, port: int) -> str:
+    """A Zenoh TCP locator; IPv6 literals go in brackets."""
+    if ":" in host:
+        return f"tcp/[{host}]:{port}"
+    return f"tcp/{host}:{port}"
+
+
+def _common(mode: str) -> dict[str, Any]:
+    return {
+        "mode": mode,
+        "scouting/multicast/enabled": False,
+        "transport/unicast/open_timeout": HANDSHAKE_MS,
+    }
+
+
+def client_config(host: str, port: int) -> dict[str, Any]:
+    """A bus: client of the router at ``host:port``, listening on nothing."""
+    host = check_host(host, allow_remote=True)  # a guard: never a wildcard or a group
+    return _common("client") | {
+        "listen/endpoints": [],
+        "connect/endpoints": [endpoint(host, port)],
+    }
+
+
+def router_config(host: str, port: int, connect: list[str] | None = None) -> dict[str, Any]:
+    """The router: listens on ``host:port`` only; ``connect`` links it to other routers."""
+    host = check_host(host, allow_remote=True)
+    return _common("router") | {
+        "scouting/gossip/enabled": False,
+        "listen/endpoints": [endpoint(host, port)],
+        "listen/exit_on_failure": True,
+        "connect/endpoints": list(connect or []),
+    }
+
+
+def build_zenoh_config(settings: dict[str, Any]) -> zenoh.Config:
+    """A :class:`zenoh.Config` with every setting inserted."""
+    config = zenoh.Config()
+    for path, value in settings.items():
+        config.insert_json5(path, json.dumps(value))
+    return config
+
+
+def router_reachable(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> bool:
+    """True if a Zenoh router answers at ``host:port`` now (opens and closes a client)."""
+    try:
+        session = zenoh.open(build_zenoh_config(client_config(host, port)))
+    except zenoh.ZError:
+        return False
+    try:
+        return bool(session.info.routers_zid())
+    finally:
+        close(session)
+
+
+def close(session: Any) -> None:
+    """``Session.close`` (zenoh's stub leaves it unannotated, which strict mypy refuses)."""
+    session.close()
