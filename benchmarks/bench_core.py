@@ -29,10 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from controller.coordination import Mode
+from controller.control_law import ControlLaw
 from controller.fuzzy import FuzzyInference, RuleBase
-from controller.scenario import Scenario, load_scenario
-from controller.simulation import build_law, simulate
+from protocol.scenario import Mode, Scenario, load_scenario
+from sim.simulation import simulate
 
 SKFUZZY_RESOLUTION = 201
 """Points per sampled universe for scikit-fuzzy (its typical use: np.linspace(lo, hi, 201))."""
@@ -178,7 +178,7 @@ def bench_step(scenario: Scenario, repeats: int) -> tuple[list[float], int, bool
     times: list[float] = []
     reproduced = True
     for repeat in range(repeats + 1):  # repeat 0 is a warm-up, not timed
-        law = build_law(scenario)
+        law = ControlLaw.for_scenario(scenario)
         step = law.step
         commands: list[tuple[float, float, float]] = []
         for t, q in ticks:

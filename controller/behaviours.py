@@ -10,8 +10,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from controller.config import ControllerConfig
-from controller.obstacle import EllipticCylinder, ObstacleMeasurement
+from controller.obstacle import ObstacleMeasurement
+from protocol.config import ControllerConfig
+from protocol.geometry import EllipticCylinder, wrap_angle
 
 TURN_LEFT = 1
 TURN_RIGHT = -1
@@ -54,7 +55,7 @@ def plan_tracking(
         distance = math.hypot(error_x, error_y)
         if distance < 1e-9:
             return STOP
-        error = _wrap(math.atan2(error_y, error_x) - heading)
+        error = wrap_angle(math.atan2(error_y, error_x) - heading)
         speed = min(config.position_gain * distance, config.speed_max)
         return Command(speed * max(math.cos(error), 0.0), config.heading_gain * error)
     along_x, along_y = vx / planned_speed, vy / planned_speed
@@ -64,7 +65,7 @@ def plan_tracking(
     target = math.atan2(vy, vx) + math.atan2(config.position_gain * offset, planned_speed)
     ax, ay = reference_acceleration
     feedforward = (vx * ay - vy * ax) / (planned_speed * planned_speed)
-    error = _wrap(target - heading)
+    error = wrap_angle(target - heading)
     return Command(speed * max(math.cos(error), 0.0), feedforward + config.heading_gain * error)
 
 
@@ -94,7 +95,7 @@ def avoid_obstacle(
         return STOP
     px, py = position
     edge_angle = _edge_direction(aim, side, px, py)
-    beta = side * _wrap(edge_angle - heading)
+    beta = side * wrap_angle(edge_angle - heading)
     distance = max(measurement.min_distance, 1e-3)
     along = distance * math.cos(beta)
     v = config.ao_speed_min + (config.ao_speed_max - config.ao_speed_min) * math.tanh(
@@ -123,7 +124,3 @@ def _edge_direction(aim: EllipticCylinder, side: int, px: float, py: float) -> f
     along_boundary = math.atan2(normal_y, normal_x) - side * math.pi / 2.0
     tilt = min(1.0, abs(depth) / max(aim.inflation, 1e-3)) * math.pi / 4.0
     return along_boundary + side * tilt
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi

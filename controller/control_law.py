@@ -11,12 +11,13 @@ import math
 from dataclasses import dataclass
 
 from controller.behaviours import STOP, Command, avoid_obstacle, choose_side, plan_tracking
-from controller.config import ControllerConfig
-from controller.coordination import AHEAD_NONE, Coordinator, smoothstep
-from controller.obstacle import EllipticCylinder, ObstacleMeasurement, measure
-from controller.planner import Trajectory
+from controller.coordination import AHEAD_NONE, Coordinator, make_coordinator, smoothstep
+from controller.obstacle import ObstacleMeasurement, measure
+from controller.planner import Trajectory, plan_of
+from protocol.config import ControllerConfig, RobotConfig
+from protocol.geometry import EllipticCylinder, wrap_angle
 from protocol.kinematics import forward, joint_rates_for
-from protocol.robot import RobotConfig
+from protocol.scenario import Scenario
 
 GOAL_HANDOVER = 0.5
 """s: how long before a waypoint's time DM starts looking towards the one after it."""
@@ -62,12 +63,29 @@ class ControlLaw:
         self._step_limits = tuple(limit * self.period for limit in robot.accel_limits)
         self.reset()
 
+    @classmethod
+    def for_scenario(cls, scenario: Scenario) -> ControlLaw:
+        """The law of ``scenario``: its robot, gains, plan, obstacle and coordination mode."""
+        config = scenario.controller
+        return cls(
+            scenario.robot,
+            config,
+            plan_of(scenario),
+            scenario.obstacle,
+            make_coordinator(scenario.mode, config.switch_distance, config.sensing_range),
+        )
+
     def reset(self) -> None:
         """Back to the state before the first tick."""
         points = self.trajectory.points
         self.heading = math.atan2(points[1][1] - points[0][1], points[1][0] - points[0][0])
         self.side = 0
         self.previous_command: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def resume_from_rest(self) -> None:
+        """Take up control again after zero was commanded (a hold): the next command ramps up
+        from zero within the acceleration limit instead of jumping back to the last one."""
+        self.previous_command = (0.0, 0.0, 0.0)
 
     def step(self, t: float, joint_position: tuple[float, float, float]) -> ControlOutput:
         config = self.config
@@ -98,7 +116,7 @@ class ControlLaw:
         rate1, rate2 = joint_rates_for(self.robot, theta1, theta2, vx, vy, config.damping)
         command, limited = self._limit((rate1, rate2, -vz))
 
-        self.heading = _wrap(self.heading + blended.omega * self.period)
+        self.heading = wrap_angle(self.heading + blended.omega * self.period)
         self.previous_command = command
         return ControlOutput(
             command=command,
@@ -174,7 +192,3 @@ class ControlLaw:
             self.previous_command[2] + (wanted[2] * scale - self.previous_command[2]) * step_scale,
         )
         return command, scale < 1.0 or step_scale < 1.0
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi

@@ -7,22 +7,17 @@ the paper's Fig. 8.
 
 from __future__ import annotations
 
-from enum import Enum
 from typing import Protocol
 
 from controller.fuzzy import FuzzyInference, RuleBase
 from controller.obstacle import ObstacleMeasurement, absent
+from protocol.scenario import Mode
 
 # How far ahead an obstacle is, as the cosine of the angle between "towards p_j" and
 # "towards the obstacle": AO counts fully above AHEAD_FULL and not at all below AHEAD_NONE,
 # where the controller also forgets its TL/TR choice.
 AHEAD_FULL = 0.3
 AHEAD_NONE = -0.2
-
-
-class Mode(Enum):
-    FUZZY = "fuzzy"
-    CONVENTIONAL = "conventional"
 
 
 class Coordinator(Protocol):

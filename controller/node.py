@@ -1,81 +1,77 @@
 """``controller``: the controller process. It owns the bus and the fixed-rate loop around the
 pure :class:`~controller.control_law.ControlLaw`.
 
-Real-time mode: ticks at absolute deadlines on the monotonic clock: it waits on the bus until
-just before each deadline, then polls. Each tick takes the newest complete, valid joint
-state, runs one control step and sends the command. If no valid joint state has arrived for
-``STALE_TICKS`` ticks it sends zero (Enable = 0) and goes to fault; it never computes a
-command from a stale state.
+Real time: the loop sleeps to absolute deadlines on the monotonic clock (no spinning: on a
+shared machine a spinning loop loses the CPU for whole scheduler slices) and at each tick
+takes every frame that arrived, runs one control step on the newest complete, valid joint
+state and sends the command. Comms loss, as on a non-real-time OS:
 
-Lockstep mode: per tick it sends the command and a StepSync naming it, then waits for the
-plant's answer. A lost or corrupt frame costs a retry, never a wrong step, so the run is
+- no new valid joint state for ``STALE_TICKS`` ticks: command zero with Enable = 0 at once
+  and HOLD: the plan's clock stops;
+- a fresh joint state during a hold: resume from the measured position, the command ramping
+  up from zero within the acceleration limit;
+- no fresh state for longer than the comms-loss timeout (default 100 ms, like a CANopen
+  heartbeat consumer time): latched FAULT until a NodeCommand reset.
+
+Holds are counted and timed, and the run's clock (the log's ``clock`` column) goes on during
+them, so a held run shows as slower, never hidden.
+
+Lockstep: per tick it sends the command and a StepSync naming it, then waits for the plant's
+answer. A lost or corrupt frame costs a retry, never a wrong step, so the run is
 bit-identical to the in-process simulation.
 
-Both modes: every received frame is checked (CRC, length, range, alive counter); bad ones are
-counted and ignored. A NodeCommand ``reset`` restarts the scenario from the plant's present
-state; an EmergencyStop latches the e-stop state until a reset.
+A NodeCommand ``reset`` restarts the scenario from the plant's present state; an
+EmergencyStop latches e-stop until a reset.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
 
-from controller.control_law import ControlOutput
-from controller.coordination import Mode
-from controller.measures import compute_measures
-from controller.process import (
-    ClockMode,
-    add_node_arguments,
-    open_node,
-    settle_memory,
-    stop_on_signals,
-)
+from controller.control_law import ControlLaw, ControlOutput
+from controller.planner import load_planned
 from controller.runlog import COLUMNS, RunLog, row_of
-from controller.scenario import Scenario
-from controller.simulation import build_law
-from protocol.e2e import E2EMonitor
-from protocol.errors import EncodeError
+from protocol.cli import number
+from protocol.codec import MessageCodec
+from protocol.errors import ConfigError, EncodeError
 from protocol.messages import (
     COMMAND,
     CONTROLLER_STATUS,
-    NODE_COMMAND,
     PLANT_STATUS,
     STATE,
     STATE_IDS,
-    STATUS_PERIOD,
     STEP,
-    STOP,
     ControllerFault,
-    Counter,
+    ControllerFlag,
     Joints,
     NodeId,
     NodeState,
     PlantFault,
-    Request,
-    encode_status,
-    send_frame,
 )
+from protocol.node import ClockMode, Node, NodeSetup, add_node_arguments, node_main
+from protocol.scenario import Mode, Scenario
 
 STALE_TICKS = 3
-"""Ticks without a new valid joint state before the controller stops and faults."""
-SPIN = 0.0002
-"""s before a deadline from which the loop polls instead of blocking (a blocking wait wakes
-~100 us late here); each poll yields the GIL, which the transport's receive threads need."""
+"""Ticks without a new valid joint state before the controller holds."""
+COMMS_TIMEOUT = 0.1
+"""s without a fresh joint state before a hold becomes a latched fault (default)."""
 LATE_TOLERANCE = 0.25
 """A tick starting later than this fraction of the period counts as a missed deadline."""
 LOCKSTEP_RETRY = 0.005
 """s the controller waits for the plant's answer in lockstep before sending again."""
 LOCKSTEP_GIVE_UP = 1.0
 """s without any answer in lockstep before the controller faults (the plant is gone)."""
+ZERO: Joints = (0.0, 0.0, 0.0)
+PREALLOCATED_ROWS = 65536
+"""Log rows reserved up front (a longer run's log grows)."""
 
 
 @dataclass(slots=True)
@@ -84,18 +80,21 @@ class JointState:
     velocity: Joints
     echo: int
     received: float
+    """When the last of its frames arrived (the bus's receive time, wall clock)."""
 
 
 @dataclass(slots=True)
 class LoopStats:
-    """How the loop kept time, and what the wire did."""
+    """How the loop kept time, what the wire did, and how often the controller held."""
 
     loops: int = 0
     ticks: int = 0
     deadline_misses: int = 0
     overruns: int = 0
-    stale_faults: int = 0
     lockstep_retries: int = 0
+    holds: int = 0
+    hold_time: float = 0.0
+    longest_hold: float = 0.0
     lateness: list[float] = field(default_factory=list)
     answer_delay: list[float] = field(default_factory=list)
 
@@ -112,8 +111,10 @@ class LoopStats:
             "deadline_misses": self.deadline_misses,
             "deadline_miss_fraction": self.deadline_misses / max(self.loops, 1),
             "overruns": self.overruns,
-            "stale_faults": self.stale_faults,
             "lockstep_retries": self.lockstep_retries,
+            "holds": self.holds,
+            "hold_time_s": self.hold_time,
+            "longest_hold_s": self.longest_hold,
             "lateness_p50_us": float(np.percentile(lateness, 50) * 1e6),
             "lateness_p99_us": float(np.percentile(lateness, 99) * 1e6),
             "lateness_max_us": float(lateness.max() * 1e6),
@@ -123,47 +124,58 @@ class LoopStats:
         }
 
 
-class ControllerNode:
+class ControllerNode(Node):
     """The controller's side of the wire around the control law of one scenario."""
+
+    name = "controller"
+    node_id = NodeId.CONTROLLER
+    status = CONTROLLER_STATUS
+    listens = (*STATE, PLANT_STATUS)
+    Fault = ControllerFault
 
     def __init__(
         self,
         bus: can.BusABC,
         scenario: Scenario,
         clock_mode: ClockMode,
+        comms_timeout: float = COMMS_TIMEOUT,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
+        wall_clock: Callable[[], float] = time.time,
     ) -> None:
-        self.bus = bus
+        super().__init__(bus, clock)
+        self.period = scenario.controller.period
+        if not comms_timeout > STALE_TICKS * self.period:
+            raise ConfigError(
+                "--comms-timeout",
+                f"{comms_timeout:g} s must exceed {STALE_TICKS} ticks "
+                f"({STALE_TICKS * self.period:g} s at {scenario.controller.rate_hz:g} Hz)",
+            )
         self.scenario = scenario
         self.clock_mode = clock_mode
-        self.clock = clock
+        self.comms_timeout = comms_timeout
         self.sleep = sleep
-        self.period = scenario.controller.period
+        self.wall_clock = wall_clock
+        self._born = clock()
         self.ticks_to_run = round(scenario.duration / self.period) + 1
-        self.law = build_law(scenario)
-        self.monitor = E2EMonitor()
+        self.law = ControlLaw.for_scenario(scenario)
         self.stats = LoopStats()
-        self.command_counter = Counter()
-        self.step_counter = Counter()
-        self.status_counter = Counter()
-        self.running = True
-        self.node_state = NodeState.READY
-        self.fault = ControllerFault(0)
         self.states_received = 0
         self._seen = 0
         self._quiet_ticks = STALE_TICKS
-        self._next_status = -float("inf")
-        self._awaiting: dict[int, float] = {}  # command counter -> when it was sent
+        self._last_fresh = -float("inf")
+        self._hold_started = 0.0
+        self._awaiting: dict[int, float] = {}  # command counter -> wall time it was sent
         self._parts: dict[int, list[tuple[float, float, int] | None]] = {}
         self.state: JointState | None = None
-        self.reset()
+        self.on_reset()
 
-    def reset(self) -> None:
+    def on_reset(self) -> None:
         """Start the scenario again from the next joint state that arrives."""
         self.law.reset()
-        self.log = RunLog(self.ticks_to_run)
-        self.tick = 0
+        self.log_rows = RunLog(min(self.ticks_to_run, PREALLOCATED_ROWS))
+        self.tick = 0  # control steps taken: the plan's clock
+        self.slot = 0  # ticks since the run started, holds and missed slots included
         self.state = None
         self._parts.clear()
         self.monitor.forget()
@@ -172,38 +184,21 @@ class ControllerNode:
 
     # --- frames in -------------------------------------------------------------------------
 
-    def drain(self, timeout: float = 0.0) -> None:
-        """Handle every frame waiting on the bus (waiting up to ``timeout`` for the first)."""
-        message = self.bus.recv(timeout=timeout)
-        while message is not None:
-            self.handle(message)
-            message = self.bus.recv(timeout=0.0)
-
-    def handle(self, message: can.Message) -> None:
-        accepted = self.monitor.accept(message, _RECEIVED)
-        if accepted is None:
-            return
-        codec, counter, values = accepted
+    def on_frame(
+        self, codec: MessageCodec, counter: int, record: Any, message: can.Message
+    ) -> None:
         if codec.frame_id in STATE_IDS:
-            self._on_state_part(STATE_IDS.index(codec.frame_id), counter, values)
-        elif codec is PLANT_STATUS:
-            if int(values[1]) & (PlantFault.JOINT_LIMIT | PlantFault.COLLISION):
-                self._enter_fault(ControllerFault.PLANT_FAULT)
-        elif codec is STOP:
-            self.fault |= ControllerFault.ESTOP
-            self.node_state = NodeState.ESTOP
-        elif codec is NODE_COMMAND:
-            request, target = int(values[0]), int(values[1])
-            if target in (NodeId.CONTROLLER, NodeId.ALL):
-                if request == Request.RESET:
-                    self.reset()
-                elif request == Request.STOP:
-                    self.running = False
+            joint = STATE_IDS.index(codec.frame_id)
+            self._on_state_part(joint, counter, record, message.timestamp)
+        elif codec is PLANT_STATUS and record.FaultCode & (
+            PlantFault.JOINT_LIMIT | PlantFault.COLLISION
+        ):
+            self.enter_fault(ControllerFault.PLANT_FAULT)
 
-    def _on_state_part(self, joint: int, counter: int, values: tuple[float, ...]) -> None:
+    def _on_state_part(self, joint: int, counter: int, record: Any, received: float) -> None:
         """Collect JointState1-3; the three frames of one plant step share one counter."""
         parts = self._parts.setdefault(counter, [None, None, None])
-        parts[joint] = (values[1], values[2], int(values[0]))
+        parts[joint] = (record.Position, record.Velocity, record.CommandEcho)
         if all(part is not None for part in parts):
             complete = [part for part in parts if part is not None]
             echoes = {part[2] for part in complete}
@@ -215,57 +210,55 @@ class ControllerNode:
                 (complete[0][0], complete[1][0], complete[2][0]),
                 (complete[0][1], complete[1][1], complete[2][1]),
                 echoes.pop(),
-                self.clock(),
+                received,
             )
             sent = self._awaiting.pop(self.state.echo, None)
             if sent is not None:
-                self.stats.answer_delay.append(self.state.received - sent)
+                self.stats.answer_delay.append(received - sent)
         elif len(self._parts) > 4:  # incomplete sets of lost frames: keep only recent ones
             for old in list(self._parts)[:-2]:
                 del self._parts[old]
 
     # --- frames out --------------------------------------------------------------------------
 
-    def _send(self, frame_id: int, data: bytes) -> None:
-        send_frame(self.bus, frame_id, data, "controller")
-
     def _send_command(self, rates: Joints, enable: bool) -> int:
-        counter = self.command_counter.next()
+        record = COMMAND.Record(
+            Enable=int(enable), Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2]
+        )
         try:
-            data = COMMAND.encode((int(enable), *rates), counter)
+            return self.send(COMMAND, record)
         except EncodeError as error:
-            print(f"controller: {error}", file=sys.stderr)
-            self._enter_fault(ControllerFault.ENCODE)
-            data = COMMAND.encode((0, 0.0, 0.0, 0.0), counter)
-        self._send(COMMAND.frame_id, data)
-        return counter
+            self.log.error("%s", error)
+            self.enter_fault(ControllerFault.ENCODE)
+            zero = COMMAND.Record(Enable=0, Theta1Rate=0.0, Theta2Rate=0.0, D3Rate=0.0)
+            return self.send(COMMAND, zero)
 
-    def _send_status(self) -> None:
-        flags = int(self.clock_mode is ClockMode.LOCKSTEP) | (
-            int(self.scenario.mode is Mode.FUZZY) << 1
-        )
-        data = encode_status(
-            CONTROLLER_STATUS,
-            self.status_counter.next(),
-            self.node_state,
-            int(self.fault),
-            flags,
-            self.monitor.counts.bad,
-            min(self.stats.deadline_misses, 0xFFFF),
-        )
-        self._send(CONTROLLER_STATUS.frame_id, data)
+    def send_zero(self) -> None:
+        """Leave the plant braking: the last word of a controller that stops or holds."""
+        self._send_command(ZERO, False)
 
-    def _enter_fault(self, reason: ControllerFault) -> None:
-        self.fault |= reason
-        if self.node_state is not NodeState.ESTOP:
-            self.node_state = NodeState.FAULT
+    def status_record(self) -> Any:
+        flags = ControllerFlag(0)
+        if self.clock_mode is ClockMode.LOCKSTEP:
+            flags |= ControllerFlag.LOCKSTEP
+        if self.scenario.mode is Mode.FUZZY:
+            flags |= ControllerFlag.FUZZY
+        return CONTROLLER_STATUS.Record(
+            State=self.node_state,
+            FaultCode=int(self.fault),
+            Flags=int(flags),
+            BadFrames=min(self.monitor.counts.bad, 0xFFFF),
+            Extra=min(self.stats.deadline_misses, 0xFFFF),
+        )
 
     # --- one control step ----------------------------------------------------------------------
 
     def _control(self, state: JointState) -> ControlOutput:
-        t = self.scenario.waypoints[0].t + self.tick * self.period
+        start = self.scenario.waypoints[0].t
+        t = start + self.tick * self.period
         output = self.law.step(t, state.position)
-        self.log.append(row_of(t, state.position, state.velocity, output))
+        clock = start + self.slot * self.period
+        self.log_rows.append(row_of(t, state.position, state.velocity, output, clock))
         self.tick += 1
         return output
 
@@ -283,16 +276,14 @@ class ControllerNode:
         """
         start = self.clock()
         deadline = start
-        while self.running and not (self.node_state is NodeState.RUNNING and self.finished):
+        while self.running and not self.finished:
             if max_wall_time is not None and self.clock() - start > max_wall_time:
+                self.log.warning("gave up after %g s (--max-wall-time)", max_wall_time)
                 break
+            remaining = deadline - self.clock()
+            if remaining > 0.0:
+                self.sleep(remaining)
             now = self.clock()
-            while now < deadline:
-                if deadline - now > SPIN:
-                    self.drain(timeout=deadline - now - SPIN)
-                else:
-                    self.sleep(0.0)  # yields the GIL to the transport's threads
-                now = self.clock()
             lateness = now - deadline
             self.stats.lateness.append(lateness)
             if lateness > LATE_TOLERANCE * self.period:
@@ -305,33 +296,56 @@ class ControllerNode:
                 missed = int((now - deadline) / self.period)
                 self.stats.deadline_misses += missed
                 deadline += missed * self.period
+                if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+                    self.slot += missed
 
     def realtime_tick(self, now: float) -> None:
-        """One real-time tick: take what arrived, check freshness, command, report.
-
-        The joint state is stale once STALE_TICKS ticks have run without a new one arriving;
-        from then on the command is zero with Enable = 0 and the node is in fault.
-        """
+        """One real-time tick: take what arrived, check freshness, command, report."""
         self.stats.loops += 1
         self.drain()
-        self._quiet_ticks = 0 if self.states_received != self._seen else self._quiet_ticks + 1
+        fresh = self.states_received != self._seen
         self._seen = self.states_received
+        if fresh:
+            self._quiet_ticks = 0
+            self._last_fresh = now
+        else:
+            self._quiet_ticks += 1
+        self._update_link_state(now, fresh)
         state = self.state
-        if self.node_state is NodeState.READY and self._quiet_ticks == 0:
-            self.node_state = NodeState.RUNNING
-        if self.node_state is NodeState.RUNNING and self._quiet_ticks >= STALE_TICKS:
-            self.stats.stale_faults += 1
-            self._enter_fault(ControllerFault.STALE_STATE)
         if self.node_state is NodeState.RUNNING and state is not None:
             output = self._control(state)
             counter = self._send_command(output.command, True)
-            self._awaiting[counter] = self.clock()
+            self._awaiting[counter] = self.wall_clock()
             self.stats.ticks += 1
         else:
-            self._send_command((0.0, 0.0, 0.0), False)
-        if now >= self._next_status:
-            self._send_status()
-            self._next_status = now + STATUS_PERIOD
+            self.send_zero()
+        if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+            self.slot += 1
+        self.send_status_if_due(now)
+
+    def _update_link_state(self, now: float, fresh: bool) -> None:
+        """READY -> RUNNING on the first state; RUNNING <-> HOLD; HOLD -> FAULT on timeout."""
+        if self.node_state is NodeState.READY and fresh:
+            self.node_state = NodeState.RUNNING
+        elif self.node_state is NodeState.RUNNING and self._quiet_ticks >= STALE_TICKS:
+            self.node_state = NodeState.HOLD
+            self._hold_started = now
+            self.stats.holds += 1
+            self.log.info("hold: no joint state for %d ticks", self._quiet_ticks)
+        elif self.node_state is NodeState.HOLD:
+            if fresh:
+                self._end_hold(now)
+                self.node_state = NodeState.RUNNING
+                self.law.resume_from_rest()
+                self.log.info("resumed after %.1f ms", 1e3 * (now - self._hold_started))
+            elif now - self._last_fresh > self.comms_timeout:
+                self._end_hold(now)
+                self.enter_fault(ControllerFault.STALE_STATE)
+
+    def _end_hold(self, now: float) -> None:
+        held = now - self._hold_started
+        self.stats.hold_time += held
+        self.stats.longest_hold = max(self.stats.longest_hold, held)
 
     # --- lockstep --------------------------------------------------------------------------------
 
@@ -349,7 +363,6 @@ class ControllerNode:
         if state is None:
             return
         self.node_state = NodeState.RUNNING
-        next_status = self.clock()
         while self.running and not self.finished:
             if self.node_state is not NodeState.RUNNING or (
                 max_wall_time is not None and self.clock() - started > max_wall_time
@@ -357,29 +370,23 @@ class ControllerNode:
                 self.send_zero()
                 return
             output = self._control(state)
+            self.slot += 1
             command = self._send_command(output.command, True)
             give_up = self.clock() + LOCKSTEP_GIVE_UP
             answer = self._exchange(self.tick, command, give_up=self.clock() + LOCKSTEP_RETRY)
             while answer is None and self.running:
                 self.stats.lockstep_retries += 1
                 if self.clock() >= give_up:
-                    self.stats.stale_faults += 1
-                    self._enter_fault(ControllerFault.STALE_STATE)
+                    self.enter_fault(ControllerFault.STALE_STATE)
                     self.send_zero()
-                    self._send_status()
+                    self.send_status_if_due(self.clock())
                     return
                 command = self._send_command(output.command, True)  # same values, new counter
                 answer = self._exchange(self.tick, command, give_up=self.clock() + LOCKSTEP_RETRY)
-                if self.clock() >= next_status:
-                    self._send_status()
-                    next_status += STATUS_PERIOD
             if answer is None:
                 return
             state = answer
             self.stats.ticks += 1
-            if self.clock() >= next_status:
-                self._send_status()
-                next_status += STATUS_PERIOD
 
     def _exchange(self, tick: int, command: int | None, give_up: float) -> JointState | None:
         """Send StepSync(tick) naming ``command`` and wait for the joint state answering it.
@@ -389,8 +396,8 @@ class ControllerNode:
         """
         self.state = None
         while self.running:
-            step = STEP.encode((command or 0, tick), self.step_counter.next())
-            self._send(STEP.frame_id, step)
+            self.send(STEP, STEP.Record(CommandCounter=command or 0, Tick=tick))
+            self.send_status_if_due(self.clock())
             resend = min(give_up, self.clock() + LOCKSTEP_RETRY)
             while self.clock() < resend:
                 self.drain(timeout=max(0.0, resend - self.clock()))
@@ -401,34 +408,31 @@ class ControllerNode:
                 return None
         return None
 
-    def stop(self) -> None:
-        self.running = False
-
-    def send_zero(self) -> None:
-        """Leave the plant braking: the last word of a controller that stops."""
-        self._send_command((0.0, 0.0, 0.0), False)
-
     # --- results ---------------------------------------------------------------------------------
 
-    def result(self) -> dict[str, object]:
-        measures = (
-            compute_measures(self.scenario, self.log).as_dict() if len(self.log) > 20 else None
-        )
-        return {
+    def finish(self) -> None:
+        self.send_zero()
+
+    def result(self) -> dict[str, Any]:
+        return super().result() | {
             "scenario": self.scenario.name,
             "mode": self.scenario.mode.value,
             "clock": self.clock_mode.value,
             "rate_hz": self.scenario.controller.rate_hz,
             "completed": self.finished,
-            "state": self.node_state.name,
-            "faults": [flag.name for flag in ControllerFault if flag in self.fault],
-            "measures": measures,
             "loop": self.stats.summary(self.period),
-            "e2e": asdict(self.monitor.counts),
+            "realtime_factor": self.tick * self.period / max(self.clock() - self._born, 1e-9),
         }
 
+    def save(self, out: Path, result: dict[str, Any]) -> None:
+        super().save(out, result)
+        np.savez_compressed(
+            out / "controller_log.npz", data=self.log_rows.data, columns=np.array(COLUMNS)
+        )
 
-_RECEIVED = {codec.frame_id for codec in (*STATE, PLANT_STATUS, STOP, NODE_COMMAND)}
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.finished and not self.fault else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -441,43 +445,40 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--mode", choices=[m.value for m in Mode], help="coordination (default: the scenario's)"
     )
-    parser.add_argument("--out", type=Path, help="write result JSON and the run log (.npz) here")
-    parser.add_argument("--max-wall-time", type=float, help="give up after this many seconds")
+    parser.add_argument(
+        "--max-wall-time",
+        type=number(0.0, low_open=True),
+        metavar="S",
+        help="give up after this many seconds",
+    )
+    parser.add_argument(
+        "--comms-timeout",
+        type=number(0.0, 10.0, low_open=True),
+        default=COMMS_TIMEOUT,
+        metavar="S",
+        help="s without a fresh joint state before a hold becomes a latched fault "
+        "(default %(default)g; must exceed 3 ticks)",
+    )
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    setup = open_node(args, "controller")
-    if setup is None:
-        return 2
-    scenario = setup.scenario.with_mode(Mode(args.mode)) if args.mode else setup.scenario
-    node = ControllerNode(setup.bus, scenario, ClockMode(args.clock))
-    stop_on_signals(node.stop)
-    settle_memory()
-    started = time.monotonic()
-    try:
-        if node.clock_mode is ClockMode.LOCKSTEP:
-            node.run_lockstep(max_wall_time=args.max_wall_time)
-        else:
-            node.run_realtime(args.max_wall_time)
-        node.send_zero()
-    finally:
-        setup.bus.shutdown()
-    wall_time = time.monotonic() - started
-    result = node.result()
-    result["wall_time_s"] = wall_time
-    result["realtime_factor"] = node.tick * node.period / wall_time
-    result["injected"] = asdict(setup.injector.counts) if setup.injector else None
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "controller_result.json").write_text(json.dumps(result, indent=2) + "\n")
-        np.savez_compressed(
-            args.out / "controller_log.npz", data=node.log.data, columns=np.array(COLUMNS)
-        )
+def make(setup: NodeSetup) -> ControllerNode:
+    scenario = setup.scenario
+    if setup.args.mode:
+        scenario = scenario.with_mode(Mode(setup.args.mode))
+    return ControllerNode(setup.bus, scenario, setup.clock_mode, setup.args.comms_timeout)
+
+
+def run(node: Node, args: argparse.Namespace) -> None:
+    assert isinstance(node, ControllerNode)
+    if node.clock_mode is ClockMode.LOCKSTEP:
+        node.run_lockstep(max_wall_time=args.max_wall_time)
     else:
-        print(json.dumps(result, indent=2))
-    return 0 if result["completed"] and not result["faults"] else 1
+        node.run_realtime(args.max_wall_time)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return node_main(build_parser(), argv, load_planned, make, run)
 
 
 if __name__ == "__main__":

@@ -5,11 +5,11 @@ cubic that meets the four boundary conditions of eq. 20-23. The waypoint velocit
 either given or chosen by the usual rule (Craig, *Introduction to Robotics*, section 7.3),
 see :func:`waypoint_velocities`.
 
-Evaluation runs every control tick (500-1000 Hz), so it uses plain floats, one
-:func:`bisect.bisect_right` for the segment lookup and Horner's scheme; numpy is only used
-by :func:`solve_eq25`, the literal matrix form kept as a reference for the tests.
+Evaluation runs every control tick (100-1000 Hz), so it uses plain floats, one
+:func:`bisect.bisect_right` for the segment lookup and Horner's scheme.
 
-This module is pure: no I/O, no clocks; the caller passes the time ``t``.
+This module is pure: no I/O, no clocks; the caller passes the time ``t``. :func:`plan_of`
+gives a scenario's plan and :func:`check_plan` checks that it stays in the workspace.
 """
 
 from __future__ import annotations
@@ -18,43 +18,23 @@ import math
 from bisect import bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, KinematicsError
+from protocol.kinematics import inverse
+from protocol.scenario import Scenario, load_scenario
 
 __all__ = [
     "CubicSegment",
     "Trajectory",
-    "Trajectory1D",
-    "solve_eq25",
+    "check_plan",
+    "load_planned",
+    "plan_of",
     "waypoint_velocities",
 ]
 
 Coefficients = tuple[float, float, float, float]
 """``(k0, k1, k2, k3)`` of ``k0 + k1 x + k2 x^2 + k3 x^3``."""
-
-
-def solve_eq25(
-    t_i: float, t_j: float, q_i: float, v_i: float, q_j: float, v_j: float
-) -> Coefficients:
-    """Solve the paper's eq. 24 literally (4x4 system in *absolute* time) with numpy.
-
-    Returns ``(k0, k1, k2, k3)`` of ``s(t) = k0 + k1 t + k2 t^2 + k3 t^3`` (eq. 25). This is
-    the reference the closed form of :meth:`CubicSegment.from_boundary` is tested against;
-    it is slow and, for large ``t``, badly conditioned, so the planner never uses it.
-    """
-    import numpy as np  # construction-time/reference only: keep it off the hot path
-
-    m = np.array(
-        [
-            [1.0, t_i, t_i**2, t_i**3],
-            [0.0, 1.0, 2.0 * t_i, 3.0 * t_i**2],
-            [1.0, t_j, t_j**2, t_j**3],
-            [0.0, 1.0, 2.0 * t_j, 3.0 * t_j**2],
-        ]
-    )
-    rhs = np.array([q_i, v_i, q_j, v_j])
-    k = np.linalg.solve(m, rhs)
-    return (float(k[0]), float(k[1]), float(k[2]), float(k[3]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,102 +183,11 @@ def waypoint_velocities(times: Sequence[float], positions: Sequence[float]) -> l
 # --- trajectories -----------------------------------------------------------------------
 
 
-class Trajectory1D:
-    """A single-axis cubic-spline reference through timed waypoints.
-
-    ``evaluate`` is clamped outside ``[t_0, t_n]``: before the start it holds the first
-    waypoint, after the end the last one, both with zero velocity and acceleration.
-    """
-
-    __slots__ = ("_positions", "_segments", "_starts", "_t0", "_times", "_tn", "_velocities")
-
-    def __init__(
-        self,
-        times: Sequence[float],
-        positions: Sequence[float],
-        velocities: Sequence[float] | None = None,
-    ) -> None:
-        ts = _check_times(times)
-        n = len(ts)
-        _check_len(positions, n, "waypoints", "positions")
-        qs = tuple(_finite(q, f"waypoints[{i}].q") for i, q in enumerate(positions))
-        if velocities is None:
-            vs = tuple(_rule_velocities(ts, qs))
-        else:
-            _check_len(velocities, n, "velocities", "velocities")
-            vs = tuple(_finite(v, f"waypoints[{i}].v") for i, v in enumerate(velocities))
-        self._times = ts
-        self._positions = qs
-        self._velocities = vs
-        self._segments = tuple(
-            CubicSegment.from_boundary(ts[i], ts[i + 1], qs[i], vs[i], qs[i + 1], vs[i + 1])
-            for i in range(n - 1)
-        )
-        self._starts = ts[:-1]
-        self._t0 = ts[0]
-        self._tn = ts[-1]
-
-    @property
-    def times(self) -> tuple[float, ...]:
-        """Waypoint times ``t_0 < ... < t_n``."""
-        return self._times
-
-    @property
-    def positions(self) -> tuple[float, ...]:
-        """Waypoint positions."""
-        return self._positions
-
-    @property
-    def velocities(self) -> tuple[float, ...]:
-        """Waypoint velocities actually used (given, or from the rule)."""
-        return self._velocities
-
-    @property
-    def segments(self) -> tuple[CubicSegment, ...]:
-        """The ``n - 1`` cubic segments, in time order."""
-        return self._segments
-
-    @property
-    def duration(self) -> float:
-        """``t_n - t_0``."""
-        return self._tn - self._t0
-
-    def segment_index(self, t: float) -> int:
-        """Index ``j`` of the next waypoint being approached: ``t`` in ``[t_{j-1}, t_j)``.
-
-        Clamped to ``1`` before ``t_1`` and to ``n - 1`` (the last waypoint) from ``t_n`` on.
-        """
-        j = bisect_right(self._times, t)
-        return 1 if j < 1 else min(j, len(self._times) - 1)
-
-    def evaluate(self, t: float) -> tuple[float, float, float]:
-        """``(position, velocity, acceleration)`` of the reference at time ``t``."""
-        if not self._t0 <= t <= self._tn:
-            return self._clamped(t)
-        # bisect_right - 1 is the segment starting at or before t; t_n maps to the last one.
-        seg = self._segments[bisect_right(self._starts, t) - 1]
-        tau = t - seg.t_start
-        k1, k2, k3 = seg.k1, seg.k2, seg.k3
-        return (
-            ((k3 * tau + k2) * tau + k1) * tau + seg.k0,
-            (3.0 * k3 * tau + 2.0 * k2) * tau + k1,
-            6.0 * k3 * tau + 2.0 * k2,
-        )
-
-    def _clamped(self, t: float) -> tuple[float, float, float]:
-        """Hold an end point at rest; NaN time is a caller bug and is refused."""
-        if t < self._t0:
-            return (self._positions[0], 0.0, 0.0)
-        if t > self._tn:
-            return (self._positions[-1], 0.0, 0.0)
-        raise ConfigError("t", f"time must be a number, got {t!r}")
-
-
 class Trajectory:
     """A multi-axis cubic reference (e.g. x, y, z) through waypoints at shared times.
 
-    One time lookup per tick serves every axis. ``evaluate`` is clamped like
-    :class:`Trajectory1D`: before ``t_0`` and after ``t_n`` it holds the first/last point
+    One time lookup per tick serves every axis. ``evaluate`` is clamped: before ``t_0`` and
+    after ``t_n`` it holds the first/last point
     with zero velocity and acceleration.
     """
 
@@ -422,3 +311,43 @@ class Trajectory:
             qd.append((3.0 * k3 * tau + 2.0 * k2) * tau + k1)
             qdd.append(6.0 * k3 * tau + 2.0 * k2)
         return (tuple(q), tuple(qd), tuple(qdd))
+
+
+# --- a scenario's plan --------------------------------------------------------------------
+
+PATH_CHECK_STEP = 0.005
+"""s between the planned points checked against the workspace."""
+
+
+def plan_of(scenario: Scenario) -> Trajectory:
+    """The cubic reference through a scenario's waypoints."""
+    return Trajectory(
+        [w.t for w in scenario.waypoints], [(w.x, w.y, w.z) for w in scenario.waypoints]
+    )
+
+
+def check_plan(scenario: Scenario) -> None:
+    """The planned path between the waypoints must stay inside the workspace (every
+    :data:`PATH_CHECK_STEP`); a :class:`ConfigError` names the segment if it does not."""
+    trajectory = plan_of(scenario)
+    start, end = scenario.waypoints[0].t, scenario.waypoints[-1].t
+    steps = max(1, math.ceil((end - start) / PATH_CHECK_STEP))
+    for step in range(steps + 1):
+        t = start + (end - start) * step / steps
+        x, y, z = trajectory.evaluate(t)[0]
+        try:
+            inverse(scenario.robot, x, y, z, scenario.elbow)
+        except KinematicsError as error:
+            segment = trajectory.segment_index(t)
+            raise ConfigError(
+                f"waypoints[{segment - 1}..{segment}]",
+                f"the planned path leaves the workspace at t = {t:.3f} s: {error}",
+            ) from error
+
+
+def load_planned(source: str | Path) -> Scenario:
+    """A scenario from a file or name, with its planned path checked too (what the
+    controller runs, and so what anything that simulates it must accept)."""
+    scenario = load_scenario(source)
+    check_plan(scenario)
+    return scenario

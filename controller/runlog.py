@@ -1,7 +1,11 @@
-"""The time series of one run: one row per control tick, one named column per quantity.
+"""The controller's log of a run: one row per control step, one named column per quantity.
 
 The in-process simulation, the controller node and a replayed log all fill the same
 :class:`RunLog`, so the measures of a run are computed the same way whatever produced it.
+
+``t`` is the plan's time of the step and ``clock`` the run's time on the tick grid. They are
+equal unless the controller held (no fresh joint state: the plan's clock stops while the
+run's goes on), so a held run shows as slower, never hidden.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ COLUMNS = (
     "blocked",
     "heading",
     "limited",
+    "clock",
 )
 COLUMN = {name: index for index, name in enumerate(COLUMNS)}
 
@@ -54,6 +59,7 @@ def row_of(
     joint_position: Sequence[float],
     joint_velocity: Sequence[float],
     output: ControlOutput,
+    clock: float,
 ) -> tuple[float, ...]:
     """One row of the log, in :data:`COLUMNS` order."""
     measurement = output.measurement
@@ -79,6 +85,7 @@ def row_of(
         float(measurement.blocked),
         output.heading,
         float(output.limited),
+        clock,
     )
 
 

@@ -10,24 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from protocol.errors import ConfigError
-from protocol.robot import RobotConfig
-
-Joints = tuple[float, float, float]
-
-
-@dataclass(frozen=True, slots=True)
-class PlantConfig:
-    """Actuator lag (s) and how many integration substeps one step is split into."""
-
-    time_constant: float = 0.008
-    substeps: int = 4
-
-    def __post_init__(self) -> None:
-        if not math.isfinite(self.time_constant) or self.time_constant <= 0.0:
-            raise ConfigError("plant.time_constant", "must be a positive number of seconds")
-        if not isinstance(self.substeps, int) or not 1 <= self.substeps <= 100:
-            raise ConfigError("plant.substeps", "must be an integer from 1 to 100")
+from protocol.config import PlantConfig, RobotConfig
+from protocol.messages import Joints
 
 
 @dataclass(slots=True)

@@ -1,62 +1,53 @@
 """``plant_sim``: the plant simulator process. It owns a bus and integrates the joint model.
 
-Real-time mode: the plant runs on its own monotonic clock and integrates in whole periods.
-When a valid command arrives it brings the joints up to the last whole period, answers at
-once with that joint state, and applies the command from then on. It also
-integrates every period on its own, and sends the state then too while no command comes, so
-a controller that starts later finds it. If no valid command arrives for ``COMMAND_TIMEOUT``
-it brakes to zero.
+Real time: the plant runs on its own monotonic clock and integrates in whole periods. When a
+valid command arrives it brings the joints up to the last whole period, answers at once with
+that joint state, and applies the command from then on. It also integrates every period on
+its own, and sends the state then too while no command comes, so a controller that starts
+later finds it. Its drives brake to zero when no valid command has come for
+``COMMAND_TIMEOUT``, also while the process itself was not scheduled: catching up after a
+stall, it integrates the last command only until the brake would have acted.
 
-Lockstep mode: time moves only on StepSync frames. Each one advances exactly one control
-period under the command it names, and the plant answers (see the DBC's comment on StepSync).
+Lockstep: time moves only on StepSync frames. Each one advances exactly one control period
+under the command it names, and the plant answers (see the DBC's comment on StepSync).
 
 Both modes: the joint limits are hard stops reported as faults; a collision of the tool with
 the obstacle (ground truth: the obstacle grown by the tool radius) is reported in PlantStatus.
-Frames that fail the CRC, length, range or alive-counter checks are counted and ignored.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from pathlib import Path
+from typing import Any
 
 import can
 
-from controller.process import (
-    ClockMode,
-    add_node_arguments,
-    open_node,
-    settle_memory,
-    stop_on_signals,
-)
-from controller.scenario import Scenario
 from plant_sim.model import PlantModel
-from protocol.e2e import E2EMonitor
+from protocol.cli import number
+from protocol.codec import MessageCodec
 from protocol.kinematics import forward
 from protocol.messages import (
     COMMAND,
     CONTROLLER_STATUS,
-    NODE_COMMAND,
     PLANT_STATUS,
     STATE,
-    STATUS_PERIOD,
     STEP,
-    STOP,
     Counter,
     NodeId,
     NodeState,
     PlantFault,
-    Request,
-    encode_status,
-    send_frame,
+    PlantFlag,
 )
+from protocol.node import ClockMode, Node, NodeSetup, add_node_arguments, node_main
+from protocol.scenario import Scenario, load_scenario
 
 COMMAND_TIMEOUT = 0.020
 """s without a valid command before the plant brakes to zero (real-time mode)."""
+ZERO = (0.0, 0.0, 0.0)
+_AT_STOP = ("THETA1_AT_STOP", "THETA2_AT_STOP", "D3_AT_STOP")
 
 
 @dataclass(slots=True)
@@ -69,8 +60,14 @@ class PlantStats:
     unknown_step_requests: int = 0
 
 
-class PlantNode:
+class PlantNode(Node):
     """The plant's side of the wire around a :class:`PlantModel`."""
+
+    name = "plant_sim"
+    node_id = NodeId.PLANT
+    status = PLANT_STATUS
+    listens = (COMMAND, STEP, CONTROLLER_STATUS)  # ControllerStatus: checked and counted only
+    Fault = PlantFault
 
     def __init__(
         self,
@@ -79,25 +76,26 @@ class PlantNode:
         clock_mode: ClockMode,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self.bus = bus
+        super().__init__(bus, clock)
         self.scenario = scenario
         self.clock_mode = clock_mode
-        self.clock = clock
         self.period = scenario.controller.period
         self.obstacle = scenario.touched_obstacle()
-        self.monitor = E2EMonitor()
         self.stats = PlantStats()
-        self.state_counter = Counter()
-        self.status_counter = Counter()
-        self.running = True
-        self.reset()
+        self._state_counter = Counter()
+        self._restart()
 
-    def reset(self) -> None:
+    def on_reset(self) -> None:
+        """NodeCommand reset: start again, and say where the arm is."""
+        self._restart()
+        self._send_state()
+
+    def _restart(self) -> None:
         """Back to the scenario's first waypoint, at rest, faults cleared."""
         self.model = PlantModel(
             self.scenario.robot, self.scenario.plant, position=self.scenario.initial_joints()
         )
-        self.command: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.command: tuple[float, float, float] = ZERO
         self.command_echo = 0
         self.command_fresh = False  # lockstep: a command has come since the last step
         self.last_command_time = -float("inf")
@@ -110,37 +108,25 @@ class PlantNode:
 
     # --- frames in -------------------------------------------------------------------------
 
-    def handle(self, message: can.Message) -> None:
-        """Act on one received frame, or count it and drop it."""
-        accepted = self.monitor.accept(message, _RECEIVED)
-        if accepted is None:
-            return
-        codec, counter, values = accepted
+    def on_frame(
+        self, codec: MessageCodec, counter: int, record: Any, message: can.Message
+    ) -> None:
         if codec is COMMAND:
-            self._on_command(counter, values)
+            self._on_command(counter, record)
         elif codec is STEP:
-            self._on_step(int(values[0]), int(values[1]))
-        elif codec is STOP:
-            self.fault |= PlantFault.ESTOP
-            self.node_state = NodeState.ESTOP
-            self.command = (0.0, 0.0, 0.0)
-        elif codec is NODE_COMMAND:
-            request, target = int(values[0]), int(values[1])
-            if target in (NodeId.PLANT, NodeId.ALL):
-                if request == Request.RESET:
-                    self.reset()
-                    self._send_state()
-                elif request == Request.STOP:
-                    self.running = False
+            self._on_step(record.CommandCounter, record.Tick)
 
-    def _on_command(self, counter: int, values: tuple[float, ...]) -> None:
+    def emergency_stop(self) -> None:
+        super().emergency_stop()
+        self.command = ZERO
+
+    def _on_command(self, counter: int, record: Any) -> None:
         if self.clock_mode is ClockMode.REALTIME:
             self._integrate_to(self.clock())
-        enable = int(values[0])
-        if self.node_state is NodeState.ESTOP or not enable:
-            self.command = (0.0, 0.0, 0.0)
+        if self.node_state is NodeState.ESTOP or not record.Enable:
+            self.command = ZERO
         else:
-            self.command = (values[1], values[2], values[3])
+            self.command = (record.Theta1Rate, record.Theta2Rate, record.D3Rate)
             if self.node_state is NodeState.READY:
                 self.node_state = NodeState.RUNNING
         self.command_echo = counter
@@ -169,9 +155,7 @@ class PlantNode:
         self.model.advance(self.command, dt)
         self.stats.steps += 1
         if any(self.model.at_limit):
-            self.fault |= PlantFault.JOINT_LIMIT
-            if self.node_state is not NodeState.ESTOP:
-                self.node_state = NodeState.FAULT
+            self.enter_fault(PlantFault.JOINT_LIMIT)
         if self.obstacle is not None:
             x, y, z = forward(self.scenario.robot, *self.model.position)
             inside = z < self.obstacle.height + self.obstacle.inflation and self.obstacle.contains(
@@ -184,8 +168,11 @@ class PlantNode:
                 self.fault |= PlantFault.COLLISION
 
     def _integrate_to(self, now: float) -> None:
-        """Real-time: advance the model in whole periods up to ``now``."""
+        """Real time: advance the model in whole periods up to ``now``, braking on the way
+        where the drives' watchdog would have (a plant process that was not scheduled for a
+        while catches up with what the drives did meanwhile)."""
         while self.model_time + self.period <= now:
+            self._watchdog(self.model_time)
             self._advance(self.period)
             self.model_time += self.period
 
@@ -198,9 +185,9 @@ class PlantNode:
 
     def _watchdog(self, now: float) -> None:
         if now - self.last_command_time > COMMAND_TIMEOUT:
-            if self.command != (0.0, 0.0, 0.0):
+            if self.command != ZERO:
                 self.stats.command_timeouts += 1
-            self.command = (0.0, 0.0, 0.0)
+            self.command = ZERO
             self.fault |= PlantFault.COMMAND_TIMEOUT
         else:
             self.fault &= ~PlantFault.COMMAND_TIMEOUT
@@ -208,44 +195,43 @@ class PlantNode:
     # --- frames out --------------------------------------------------------------------------
 
     def _send_state(self) -> None:
-        counter = self.state_counter.next()
+        """JointState1-3 with one alive counter: together they are one joint state."""
+        counter = self._state_counter.next()
         for codec, position, velocity in zip(
             STATE, self.model.position, self.model.velocity, strict=True
         ):
-            self._send(
-                codec.frame_id, codec.encode((self.command_echo, position, velocity), counter)
+            record = codec.Record(
+                CommandEcho=self.command_echo, Position=position, Velocity=velocity
             )
+            self.send(codec, record, counter)
         self.stats.states_sent += 1
 
-    def _send_status(self) -> None:
-        flags = int(self.collided) | sum(
-            1 << (joint + 1) for joint, hit in enumerate(self.model.at_limit) if hit
+    def status_record(self) -> Any:
+        flags = PlantFlag(0)
+        if self.collided:
+            flags |= PlantFlag.COLLISION
+        for name, hit in zip(_AT_STOP, self.model.at_limit, strict=True):
+            if hit:
+                flags |= PlantFlag[name]
+        return PLANT_STATUS.Record(
+            State=self.node_state,
+            FaultCode=int(self.fault),
+            Flags=int(flags),
+            BadFrames=min(self.monitor.counts.bad, 0xFFFF),
+            Extra=self.stats.steps & 0xFFFF,
         )
-        data = encode_status(
-            PLANT_STATUS,
-            self.status_counter.next(),
-            self.node_state,
-            int(self.fault),
-            flags,
-            self.monitor.counts.bad,
-            self.stats.steps & 0xFFFF,
-        )
-        self._send(PLANT_STATUS.frame_id, data)
 
-    def _send(self, frame_id: int, data: bytes) -> None:
-        send_frame(self.bus, frame_id, data, "plant_sim")
-
-    # --- loops -------------------------------------------------------------------------------
+    # --- loop ----------------------------------------------------------------------------------
 
     def run(self, duration: float | None = None) -> None:
         """Serve until stopped (NodeCommand stop, SIGINT/SIGTERM) or ``duration`` passes."""
         start = self.clock()
         next_tick = start + self.period
-        next_status = start
         self._send_state()
         while self.running and (duration is None or self.clock() - start < duration):
             now = self.clock()
-            wait = next_tick - now if self.clock_mode is ClockMode.REALTIME else STATUS_PERIOD
+            next_status = self._next_status
+            wait = next_tick - now if self.clock_mode is ClockMode.REALTIME else next_status - now
             message = self.bus.recv(timeout=max(0.0, min(wait, next_status - now)))
             if message is not None:
                 self.handle(message)
@@ -253,16 +239,10 @@ class PlantNode:
             if self.clock_mode is ClockMode.REALTIME and now >= next_tick:
                 self.on_period(now)
                 next_tick += self.period * max(1, int((now - next_tick) / self.period) + 1)
-            if now >= next_status:
-                self._send_status()
-                next_status += STATUS_PERIOD
+            self.send_status_if_due(now)
 
-    def stop(self) -> None:
-        self.running = False
-
-
-# ControllerStatus is only counted (checked, never acted on): the plant needs nothing from it.
-_RECEIVED = {codec.frame_id for codec in (COMMAND, STEP, STOP, NODE_COMMAND, CONTROLLER_STATUS)}
+    def result(self) -> dict[str, Any]:
+        return super().result() | {"stats": asdict(self.stats)}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -272,33 +252,23 @@ def build_parser() -> argparse.ArgumentParser:
         "receives over CAN and answers with the joint state.",
     )
     add_node_arguments(parser, "real time on its own clock, or lockstep driven by StepSync")
-    parser.add_argument("--duration", type=float, help="stop after this many seconds")
-    parser.add_argument("--stats", type=Path, help="write counters as JSON here on exit")
+    parser.add_argument(
+        "--duration", type=number(0.0, low_open=True), metavar="S", help="stop after S seconds"
+    )
     return parser
 
 
+def make(setup: NodeSetup) -> PlantNode:
+    return PlantNode(setup.bus, setup.scenario, setup.clock_mode)
+
+
+def run(node: Node, args: argparse.Namespace) -> None:
+    assert isinstance(node, PlantNode)
+    node.run(args.duration)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    setup = open_node(args, "plant_sim")
-    if setup is None:
-        return 2
-    node = PlantNode(setup.bus, setup.scenario, ClockMode(args.clock))
-    stop_on_signals(node.stop)
-    settle_memory()
-    try:
-        node.run(args.duration)
-    finally:
-        if args.stats:  # before closing the bus, which may take a while to flush
-            report = {
-                "stats": asdict(node.stats),
-                "e2e": asdict(node.monitor.counts),
-                "faults": int(node.fault),
-                "state": node.node_state.name,
-                "injected": asdict(setup.injector.counts) if setup.injector else None,
-            }
-            args.stats.write_text(json.dumps(report, indent=2) + "\n")
-        setup.bus.shutdown()
-    return 0
+    return node_main(build_parser(), argv, load_scenario, make, run)
 
 
 if __name__ == "__main__":

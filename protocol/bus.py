@@ -3,14 +3,13 @@
 The transport is python-can's ``interface`` + ``channel``: given on the command line, else
 taken from python-can's environment variables or config file (``CAN_INTERFACE``,
 ``CAN_CHANNEL``, ``~/.canrc``), else the embedded default: ``socketcan`` on ``vcan0`` where
-that device exists, otherwise the CAN-over-Zenoh interface on 127.0.0.1.
+that device exists, otherwise the CAN-over-Zenoh interface through its router on 127.0.0.1.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -92,23 +91,3 @@ def open_bus(interface: str | None, channel: str | None, options: dict[str, Any]
 
 def open_bus_from_args(args: argparse.Namespace) -> can.BusABC:
     return open_bus(args.interface, args.channel, parse_options(args.bus_option))
-
-
-def add_priority_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--realtime-priority",
-        type=int,
-        metavar="N",
-        help="run under SCHED_FIFO at priority N (1-99; needs root or CAP_SYS_NICE); threads "
-        "the transport starts afterwards inherit it",
-    )
-
-
-def apply_priority(priority: int | None, prog: str) -> None:
-    """Switch this process to SCHED_FIFO if asked; say so, and go on, if not permitted."""
-    if priority is None:
-        return
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (AttributeError, OSError, ValueError) as error:
-        print(f"{prog}: real-time priority {priority} not applied: {error}", file=sys.stderr)

@@ -38,9 +38,10 @@ class FaultSpec:
             if key not in ("drop", "corrupt", "seed"):
                 raise ConfigError(f"inject-faults.{key}", "unknown; use drop, corrupt, seed")
             try:
-                values[key] = float(number)
+                values[key] = int(number) if key == "seed" else float(number)
             except ValueError as error:
-                raise ConfigError(f"inject-faults.{key}", f"not a number: {number!r}") from error
+                kind = "an integer" if key == "seed" else "a number"
+                raise ConfigError(f"inject-faults.{key}", f"not {kind}: {number!r}") from error
         spec = cls(values.get("drop", 0.0), values.get("corrupt", 0.0), int(values.get("seed", 0)))
         for name in ("drop", "corrupt"):
             if not 0.0 <= getattr(spec, name) <= 1.0:

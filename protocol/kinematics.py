@@ -1,4 +1,4 @@
-"""Kinematics of the RRP SCARA arm (paper section 2, DESIGN.md section 2).
+"""Kinematics of the RRP SCARA arm (paper section 2).
 
 Pure functions on plain floats, written with :mod:`math` rather than numpy: they run on
 every control tick (500-1000 Hz), where numpy's per-call overhead would dominate.
@@ -12,9 +12,15 @@ from __future__ import annotations
 
 import math
 from enum import Enum
+from typing import Any, TypeVar
 
+import numpy as np
+import numpy.typing as npt
+
+from protocol.config import RobotConfig
 from protocol.errors import JointLimitError, UnreachableError
-from protocol.robot import RobotConfig
+
+Real = TypeVar("Real", float, npt.NDArray[np.float64])
 
 # Round-off allowed on cos(theta2), z and the joint limits, so that points exactly on the
 # workspace boundary (e.g. forward() of a joint limit) stay reachable; results are clamped.
@@ -95,22 +101,6 @@ def inverse(
     )
 
 
-def inverse_any(
-    config: RobotConfig, x: float, y: float, z: float, prefer: Elbow = Elbow.DOWN
-) -> tuple[float, float, float]:
-    """Like :func:`inverse`, but falls back to the other elbow if ``prefer`` hits a joint limit.
-
-    If neither branch is within limits, raises the preferred branch's JointLimitError.
-    """
-    try:
-        return inverse(config, x, y, z, prefer)
-    except JointLimitError as preferred_error:
-        try:
-            return inverse(config, x, y, z, Elbow(-prefer.value))
-        except JointLimitError:
-            raise preferred_error from None
-
-
 def jacobian_planar(
     config: RobotConfig, theta1: float, theta2: float
 ) -> tuple[float, float, float, float]:
@@ -122,6 +112,22 @@ def jacobian_planar(
         -a2s12,
         config.a1 * math.cos(theta1) + a2c12,
         a2c12,
+    )
+
+
+def tcp_velocity(
+    config: RobotConfig, theta1: Real, theta2: Real, rate1: Real, rate2: Real, trig: Any = math
+) -> tuple[Real, Real]:
+    """Planar tool velocity ``J(theta) (theta1_dot, theta2_dot)`` (eq. 10 differentiated).
+
+    ``trig`` supplies ``sin`` and ``cos``: :mod:`math` for one state, :mod:`numpy` for the
+    arrays of a whole log (the measures of a run).
+    """
+    theta12 = theta1 + theta2
+    rate12 = rate1 + rate2
+    return (
+        -config.a1 * trig.sin(theta1) * rate1 - config.a2 * trig.sin(theta12) * rate12,
+        config.a1 * trig.cos(theta1) * rate1 + config.a2 * trig.cos(theta12) * rate12,
     )
 
 

@@ -1,9 +1,11 @@
 """Scenarios as TOML files: waypoints with times, the obstacle, the mode, the rates.
 
-A scenario is checked whole before anything moves: every value finite, times increasing,
-every waypoint reachable within the joint limits and outside the obstacle, and the planned
-path between waypoints inside the workspace. Errors are :class:`ConfigError` and name the
-field (``waypoints[2].x``, ``obstacle.height``, ...).
+A scenario is what the controller and the plant agree to run, so it is part of the protocol:
+both processes read the same file. It is checked whole before anything moves: every value
+finite, times increasing, every waypoint reachable within the joint limits and outside the
+obstacle, and the robot's ranges within what the wire carries. (The controller adds its own
+check of the planned path, :func:`controller.planner.check_plan`.) Errors are
+:class:`ConfigError` and name the field (``waypoints[2].x``, ``obstacle.height``, ...).
 """
 
 from __future__ import annotations
@@ -12,23 +14,21 @@ import math
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from controller.config import ControllerConfig
-from controller.coordination import Mode
-from controller.obstacle import EllipticCylinder
-from controller.planner import Trajectory
-from plant_sim.model import PlantConfig
+from protocol.config import ControllerConfig, PlantConfig, RobotConfig
 from protocol.errors import ConfigError, KinematicsError
+from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow, inverse
 from protocol.messages import COMMAND, STATE
-from protocol.robot import RobotConfig
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+MAX_DURATION = 3600.0
+"""s: the longest run a scenario may ask for (its waypoints' span plus the settling time)."""
 DEFAULT_TOOL_RADIUS = 0.01
 DEFAULT_MARGIN = 0.01
-PATH_CHECK_STEP = 0.005  # s between the planned points checked against the workspace
 
 _TOP_LEVEL = {
     "name",
@@ -42,6 +42,13 @@ _TOP_LEVEL = {
     "obstacle",
     "waypoints",
 }
+
+
+class Mode(Enum):
+    """How PT and AO are blended: the fuzzy coordinator or the conventional hard switch."""
+
+    FUZZY = "fuzzy"
+    CONVENTIONAL = "conventional"
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,9 +72,6 @@ class Scenario:
     controller: ControllerConfig = field(default_factory=ControllerConfig)
     plant: PlantConfig = field(default_factory=PlantConfig)
     tool_radius: float = 0.01
-
-    def trajectory(self) -> Trajectory:
-        return Trajectory([w.t for w in self.waypoints], [(w.x, w.y, w.z) for w in self.waypoints])
 
     def touched_obstacle(self) -> EllipticCylinder | None:
         """The obstacle grown by the tool radius only: what the tool really collides with."""
@@ -152,13 +156,17 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
         plant=plant,
         tool_radius=tool_radius,
     )
+    if scenario.duration > MAX_DURATION:
+        raise ConfigError(
+            "waypoints",
+            f"the run would last {scenario.duration:g} s; at most {MAX_DURATION:g} s",
+        )
     check_scenario(scenario)
     return scenario
 
 
 def check_scenario(scenario: Scenario) -> None:
-    """The robot must fit the wire; every waypoint and the planned path between them must be
-    reachable and free."""
+    """The robot must fit the wire; every waypoint must be reachable and free."""
     check_robot_fits_wire(scenario.robot)
     obstacle = scenario.obstacle
     for index, point in enumerate(scenario.waypoints):
@@ -175,28 +183,15 @@ def check_scenario(scenario: Scenario) -> None:
                 f"waypoints[{index}]",
                 f"({point.x:g}, {point.y:g}, {point.z:g}) is inside the inflated obstacle",
             )
-    trajectory = scenario.trajectory()
-    start, end = scenario.waypoints[0].t, scenario.waypoints[-1].t
-    steps = max(1, math.ceil((end - start) / PATH_CHECK_STEP))
-    for step in range(steps + 1):
-        t = start + (end - start) * step / steps
-        x, y, z = trajectory.evaluate(t)[0]
-        try:
-            inverse(scenario.robot, x, y, z, scenario.elbow)
-        except KinematicsError as error:
-            segment = trajectory.segment_index(t)
-            raise ConfigError(
-                f"waypoints[{segment - 1}..{segment}]",
-                f"the planned path leaves the workspace at t = {t:.3f} s: {error}",
-            ) from error
 
 
 def check_robot_fits_wire(robot: RobotConfig) -> None:
     """Joint limits and speed limits must lie within what the DBC's signals can carry."""
     lows, highs, speeds = robot.joint_min, robot.joint_max, robot.speed_limits
     names = ("theta1", "theta2", "d3")
-    for joint, (state, name) in enumerate(zip(STATE, names, strict=True)):
-        position, velocity = state.fields
+    rates = ("Theta1Rate", "Theta2Rate", "D3Rate")
+    for joint, (state, name, rate_name) in enumerate(zip(STATE, names, rates, strict=True)):
+        position, velocity = state.spec["Position"], state.spec["Velocity"]
         for field_name, value in ((f"{name}_min", lows[joint]), (f"{name}_max", highs[joint])):
             if not position.minimum <= value <= position.maximum:
                 raise ConfigError(
@@ -204,7 +199,7 @@ def check_robot_fits_wire(robot: RobotConfig) -> None:
                     f"{value:g} is outside what {state.name}.Position carries "
                     f"[{position.minimum:g}, {position.maximum:g}]",
                 )
-        rate = COMMAND.fields[joint]
+        rate = COMMAND.spec[rate_name]
         limit = min(velocity.maximum, -velocity.minimum, rate.maximum, -rate.minimum)
         if speeds[joint] > limit:
             raise ConfigError(

@@ -1,7 +1,7 @@
 """``scara-sim``: run a scenario in-process in both coordination modes and compare them.
 
-Prints the measures side by side (DESIGN.md section 4), writes the figure (top view, 3D
-view, joints, k_T and k_C) and the measures as JSON.
+Prints the measures side by side, writes the figure (top view, 3D view, joints, k_T and
+k_C) and the measures as JSON.
 """
 
 from __future__ import annotations
@@ -13,11 +13,12 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from controller.coordination import Mode
-from controller.measures import format_table
-from controller.scenario import SCENARIO_DIR, load_scenario
-from controller.simulation import SimulationRun, simulate
+from controller.planner import load_planned
+from protocol.cli import add_verbosity, configure_logging
 from protocol.errors import ScaraError
+from protocol.scenario import SCENARIO_DIR, Mode
+from sim.measures import format_table
+from sim.simulation import SimulationRun, simulate
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,13 +47,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="folder for the figure and JSON (default: out)",
     )
     parser.add_argument("--no-figure", action="store_true", help="skip writing the figure")
+    add_verbosity(parser)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(args.verbose)
     try:
-        scenario = load_scenario(args.scenario)
+        scenario = load_planned(args.scenario)
     except ScaraError as error:
         print(f"scara-sim: bad scenario: {error}", file=sys.stderr)
         return 2
@@ -75,7 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     print(f"\nmeasures: {measures_path}")
     if not args.no_figure:
-        from controller.figure import comparison_figure
+        from sim.figure import comparison_figure  # matplotlib only when drawing
 
         figure_path = comparison_figure(runs, args.out / f"{scenario.name}.png")
         print(f"figure:   {figure_path}")

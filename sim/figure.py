@@ -16,8 +16,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Ellipse, Wedge
 
-from controller.simulation import SimulationRun
 from protocol.kinematics import reach_radii
+from sim.simulation import SimulationRun
 
 MODE_COLOURS = {"fuzzy": "tab:blue", "conventional": "tab:red"}
 

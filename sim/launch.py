@@ -1,12 +1,14 @@
 """``scara-run``: start the plant and the controller as separate OS processes on one CAN
-transport, run a scenario, stop both cleanly (Ctrl-C too) and print the measures and the loop
-statistics.
+transport, run a scenario, stop both cleanly (Ctrl-C too) and print the report.
+
+On the CAN-over-Zenoh transport it first makes sure a router runs on the transport's port:
+if none answers it starts ``scara-router`` and stops it at the end, so the router outlives
+either node (one may be restarted mid-run, and other tools may join) but not the launcher.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import subprocess
 import sys
@@ -14,21 +16,25 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
-from typing import Any
 
 from tqdm import tqdm
 
-from controller.coordination import Mode
-from controller.measures import Measures, format_table
-from controller.process import ClockMode
-from controller.scenario import load_scenario
-from protocol.bus import add_bus_arguments, add_priority_argument, resolve_transport
+from controller.planner import load_planned
+from protocol.bus import add_bus_arguments, parse_options, resolve_transport
+from protocol.cli import add_verbosity, configure_logging, number
+from protocol.config import MAX_RATE_HZ, MIN_RATE_HZ
 from protocol.errors import ScaraError
+from protocol.node import ClockMode
+from protocol.scenario import Mode
+from protocol.zenoh_can.config import DEFAULT_HOST, DEFAULT_PORT, router_reachable
+from sim.report import format_report, read_run
 
 STOP_GRACE = 5.0
 """s a process gets to exit after SIGINT before it is killed."""
 REALTIME_SLACK = 10.0
-"""s a real-time run may take beyond twice the scenario's duration (start-up, waiting)."""
+"""s a real-time run may take beyond twice the scenario's duration (start-up, holds)."""
+ROUTER_START = 10.0
+"""s the router gets to answer after it was started."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,7 +51,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=ClockMode.REALTIME.value,
         help="real time (each process on its own clock) or lockstep (deterministic)",
     )
-    parser.add_argument("--rate", type=float, help="control rate in Hz (default 500)")
+    parser.add_argument(
+        "--rate",
+        type=number(MIN_RATE_HZ, MAX_RATE_HZ),
+        metavar="HZ",
+        help=f"control rate in Hz, {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g} (default: the scenario's)",
+    )
     parser.add_argument("--out", type=Path, default=Path("out/run"), help="results folder")
     parser.add_argument(
         "--controller-first", action="store_true", help="start the controller before the plant"
@@ -55,9 +66,32 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SPEC",
         help="drop/corrupt frames both nodes send, e.g. drop=0.05,corrupt=0.01 (tests)",
     )
-    parser.add_argument("--timeout", type=float, default=600.0, help="give up after this many s")
+    parser.add_argument(
+        "--timeout",
+        type=number(0.0, low_open=True),
+        default=600.0,
+        metavar="S",
+        help="give up after this many seconds (default %(default)g)",
+    )
+    parser.add_argument(
+        "--comms-timeout",
+        type=number(0.0, 10.0, low_open=True),
+        metavar="S",
+        help="the controller's comms-loss timeout (default 0.1 s)",
+    )
+    parser.add_argument(
+        "--realtime-priority",
+        type=number(1, 99, integer=True),
+        metavar="N",
+        help="run both nodes under SCHED_FIFO at priority N (root or CAP_SYS_NICE)",
+    )
+    parser.add_argument(
+        "--plain-scheduling",
+        action="store_true",
+        help="nodes do not ask for precise wake-ups (to measure what that brings)",
+    )
     add_bus_arguments(parser)
-    add_priority_argument(parser)
+    add_verbosity(parser)
     return parser
 
 
@@ -68,33 +102,57 @@ def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str],
     a controller in fault waits for a reset that nobody here will send.
     """
     interface, channel = resolve_transport(args.interface, args.channel)
-    bus = ["--interface", interface, "--channel", channel]
+    common = [args.scenario, "--clock", args.clock, "--interface", interface, "--channel", channel]
     for option in args.bus_option:
-        bus += ["--bus-option", option]
-    common = [args.scenario, "--clock", args.clock, *bus]
+        common += ["--bus-option", option]
+    common += ["--out", str(args.out)] + ["-v"] * args.verbose
     if args.rate:
         common += ["--rate", str(args.rate)]
     if args.realtime_priority:
         common += ["--realtime-priority", str(args.realtime_priority)]
-    plant = [
-        sys.executable,
-        "-m",
-        "plant_sim.node",
-        *common,
-        "--stats",
-        str(args.out / "plant.json"),
-    ]
-    controller = [sys.executable, "-m", "controller.node", *common, "--out", str(args.out)]
+    if args.plain_scheduling:
+        common += ["--plain-scheduling"]
+    plant = [sys.executable, "-m", "plant_sim.node", *common]
+    controller = [sys.executable, "-m", "controller.node", *common]
     wall_time = args.timeout
     if args.clock == ClockMode.REALTIME.value:
         wall_time = min(wall_time, 2.0 * duration + REALTIME_SLACK)
     controller += ["--max-wall-time", f"{wall_time:g}"]
     if args.mode:
         controller += ["--mode", args.mode]
+    if args.comms_timeout:
+        controller += ["--comms-timeout", str(args.comms_timeout)]
     if args.inject_faults:
         plant += ["--inject-faults", f"{args.inject_faults},seed=2"]
         controller += ["--inject-faults", f"{args.inject_faults},seed=1"]
     return plant, controller
+
+
+def router_command(args: argparse.Namespace) -> list[str] | None:
+    """The router to start for ``args``: None if the transport is not Zenoh or one answers."""
+    interface, _ = resolve_transport(args.interface, args.channel)
+    if interface != "zenoh":
+        return None
+    options = parse_options(args.bus_option)
+    host, port = str(options.get("host", DEFAULT_HOST)), int(options.get("port", DEFAULT_PORT))
+    if router_reachable(host, port):
+        return None
+    command = [sys.executable, "-m", "protocol.zenoh_can.router", "--host", host]
+    command += ["--port", str(port)]
+    if options.get("allow_remote"):
+        command.append("--allow-remote")
+    return command
+
+
+def wait_for_router(args: argparse.Namespace, router: subprocess.Popen[bytes]) -> bool:
+    options = parse_options(args.bus_option)
+    host, port = str(options.get("host", DEFAULT_HOST)), int(options.get("port", DEFAULT_PORT))
+    deadline = time.monotonic() + ROUTER_START
+    while time.monotonic() < deadline and router.poll() is None:
+        if router_reachable(host, port):
+            return True
+        time.sleep(0.05)
+    return False
 
 
 def stop(process: subprocess.Popen[bytes]) -> int:
@@ -109,75 +167,22 @@ def stop(process: subprocess.Popen[bytes]) -> int:
     return process.returncode
 
 
-def report(out: Path) -> dict[str, Any]:
-    """The controller's and the plant's results, as they wrote them."""
-    result: dict[str, Any] = json.loads((out / "controller_result.json").read_text())
-    plant_file = out / "plant.json"
-    result["plant"] = json.loads(plant_file.read_text()) if plant_file.exists() else None
-    return result
-
-
-def print_report(result: dict[str, Any]) -> None:
-    loop = result["loop"]
-    print(
-        f"{result['scenario']} [{result['mode']}, {result['clock']}, {result['rate_hz']:g} Hz]: "
-        f"{'completed' if result['completed'] else 'NOT completed'}, state {result['state']}"
-        + (f", faults {', '.join(result['faults'])}" if result["faults"] else "")
-    )
-    if result["measures"]:
-        values = dict(result["measures"])
-        values.pop("max_waypoint_miss")
-        values["waypoint_miss"] = tuple(values["waypoint_miss"])
-        print()
-        print(format_table({result["mode"]: Measures(**values)}))
-    print()
-    print(
-        f"loop: {loop['ticks']} control ticks of {loop['loops']}; lateness p50 "
-        f"{loop['lateness_p50_us']:.0f} us, p99 {loop['lateness_p99_us']:.0f} us, max "
-        f"{loop['lateness_max_us']:.0f} us; deadline misses {loop['deadline_misses']} "
-        f"({100 * loop['deadline_miss_fraction']:.2f} %), overruns {loop['overruns']}"
-    )
-    if loop["answered_within_tick_fraction"] is not None:
-        print(
-            f"answer to a command within one tick: "
-            f"{100 * loop['answered_within_tick_fraction']:.2f} % (delay p50 "
-            f"{loop['answer_delay_p50_us']:.0f} us, p99 {loop['answer_delay_p99_us']:.0f} us)"
-        )
-    else:
-        print(f"lockstep retries: {loop['lockstep_retries']}")
-    print(
-        f"wall time {result['wall_time_s']:.2f} s for {loop['ticks']} ticks: "
-        f"{result['realtime_factor']:.1f}x real time"
-    )
-    e2e = result["e2e"]
-    print(
-        f"controller received: {e2e['ok']} ok, {e2e['lost']} lost, {e2e['repeated']} repeated, "
-        f"{e2e['stale']} stale, {e2e['corrupt']} corrupt (none acted on)"
-    )
-    plant = result.get("plant")
-    if plant:
-        pe = plant["e2e"]
-        print(
-            f"plant received:      {pe['ok']} ok, {pe['lost']} lost, {pe['repeated']} repeated, "
-            f"{pe['stale']} stale, {pe['corrupt']} corrupt; collisions "
-            f"{plant['stats']['collisions']}, state {plant['state']}"
-        )
-
-
 def _interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(args.verbose)
     signal.signal(signal.SIGTERM, _interrupt)  # stop the nodes on SIGTERM as on Ctrl-C
     try:
-        scenario = load_scenario(args.scenario)
-    except ScaraError as error:
-        print(f"scara-run: bad scenario: {error}", file=sys.stderr)
+        scenario = load_planned(args.scenario)
+        parse_options(args.bus_option)
+    except (ScaraError, argparse.ArgumentTypeError) as error:
+        print(f"scara-run: {error}", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    for stale in ("controller_result.json", "plant.json"):
+    for stale in ("controller.json", "plant_sim.json", "controller_log.npz"):
         (args.out / stale).unlink(missing_ok=True)
     plant_command, controller_command = node_commands(args, scenario.duration)
     order = (
@@ -186,8 +191,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         else [plant_command, controller_command]
     )
     processes: list[subprocess.Popen[bytes]] = []
+    router: subprocess.Popen[bytes] | None = None
     interrupted = False
     try:
+        command = router_command(args)
+        if command is not None:
+            router = subprocess.Popen(command)
+            if not wait_for_router(args, router):
+                print("scara-run: the Zenoh router did not come up", file=sys.stderr)
+                return 1
         processes += [subprocess.Popen(command) for command in order]
         controller = processes[0] if args.controller_first else processes[1]
         started = time.monotonic()
@@ -207,12 +219,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\nscara-run: interrupted, stopping the nodes", file=sys.stderr)
     finally:
         codes = [stop(process) for process in reversed(processes)]
+        if router is not None:
+            stop(router)
     if interrupted:
         return 130
-    if not (args.out / "controller_result.json").exists():
+    if not (args.out / "controller.json").exists():
         print(f"scara-run: the controller wrote no result (exit codes {codes})", file=sys.stderr)
         return 1
-    print_report(report(args.out))
+    mode = Mode(args.mode) if args.mode else scenario.mode
+    print(format_report(read_run(args.out, scenario.with_mode(mode))))
     return controller.returncode or 0
 
 

@@ -1,4 +1,5 @@
-"""The measures of a run (DESIGN.md section 4), defined once for every source of runs."""
+"""The measures of a run, defined once for every source of runs (the in-process simulation,
+a co-simulation's controller log, a replayed recording); see ``docs/design.md``."""
 
 from __future__ import annotations
 
@@ -8,8 +9,10 @@ from typing import Any
 
 import numpy as np
 
+from controller.planner import plan_of
 from controller.runlog import RunLog
-from controller.scenario import Scenario
+from protocol.kinematics import tcp_velocity
+from protocol.scenario import Scenario
 
 WAYPOINT_TOLERANCE = 0.002
 """m: a waypoint counts as passed when the TCP comes this close."""
@@ -60,30 +63,21 @@ TABLE_ROWS = (
 )
 
 
-def tcp_velocity(scenario: Scenario, log: RunLog) -> np.ndarray:
-    """TCP velocity from the measured joint states (J q'), one row per tick."""
-    robot = scenario.robot
-    theta1, theta2 = log["theta1"], log["theta2"]
-    rate1, rate2 = log["theta1_rate"], log["theta2_rate"]
-    theta12 = theta1 + theta2
-    rate12 = rate1 + rate2
-    vx = -robot.a1 * np.sin(theta1) * rate1 - robot.a2 * np.sin(theta12) * rate12
-    vy = robot.a1 * np.cos(theta1) * rate1 + robot.a2 * np.cos(theta12) * rate12
-    return np.column_stack([vx, vy, -log["d3_rate"]])
-
-
 def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
     times = log["t"]
     period = scenario.controller.period
     positions = log.columns("x", "y", "z")
-    velocity = tcp_velocity(scenario, log)
-    jerk = np.linalg.norm(second_derivative(velocity, period), axis=1)
+    vx, vy = tcp_velocity(
+        scenario.robot, log["theta1"], log["theta2"], log["theta1_rate"], log["theta2_rate"], np
+    )
+    velocity = np.column_stack([vx, vy, -log["d3_rate"]])
+    jerk = np.linalg.norm(second_derivative(velocity, period, log["clock"]), axis=1)
 
     clearance = log["clearance"]
     min_clearance = float(np.min(clearance)) if len(clearance) else math.inf
 
     waypoints = scenario.waypoints
-    planned = scenario.trajectory()
+    planned = plan_of(scenario)
     samples = np.linspace(waypoints[0].t, waypoints[-1].t, 2001)
     planned_points = np.array([planned.evaluate(float(t))[0] for t in samples])
     planned_length = float(np.sum(np.linalg.norm(np.diff(planned_points[:, :2], axis=0), axis=1)))
@@ -104,7 +98,8 @@ def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
     done = (np.linalg.norm(positions - (last.x, last.y, last.z), axis=1) <= WAYPOINT_TOLERANCE) & (
         times >= waypoints[-2].t
     )
-    completion = float(times[np.argmax(done)] - waypoints[0].t) if done.any() else math.nan
+    clock = log["clock"]
+    completion = float(clock[np.argmax(done)] - waypoints[0].t) if done.any() else math.nan
 
     commands = log.columns("command_theta1", "command_theta2")
     return Measures(
@@ -122,12 +117,14 @@ def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
     )
 
 
-def second_derivative(series: np.ndarray, period: float) -> np.ndarray:
+def second_derivative(series: np.ndarray, period: float, clock: np.ndarray) -> np.ndarray:
     """Second derivative of each column by a Savitzky-Golay filter (cubic, JERK_WINDOW ticks).
 
     Differencing the measured velocity twice would mostly measure the wire's quantisation
     (1e-3 rad/s per step is ~100 m/s^3 of jerk at 500 Hz); the local cubic fit removes that
     while keeping the jerk of a switch, which lasts several ticks through the actuator lag.
+    Only windows of consecutive ticks count: across a hold there is no measured state, and a
+    fit over the gap would invent jerk.
     """
     half = JERK_WINDOW // 2
     if len(series) < JERK_WINDOW:
@@ -136,7 +133,9 @@ def second_derivative(series: np.ndarray, period: float) -> np.ndarray:
     design = np.vander(offsets, 4, increasing=True)
     weights = np.linalg.pinv(design)[2] * 2.0 / period**2
     windows = np.lib.stride_tricks.sliding_window_view(series, JERK_WINDOW, axis=0)
-    return np.asarray(windows @ weights)
+    gaps = np.diff(clock) > 1.5 * period
+    spans_gap = np.convolve(gaps, np.ones(JERK_WINDOW - 1), mode="valid") > 0
+    return np.asarray(windows @ weights)[~spans_gap]
 
 
 def _count_runs(flags: np.ndarray, min_length: int) -> int:

@@ -10,12 +10,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from controller.control_law import ControlLaw
-from controller.coordination import Mode, make_coordinator
-from controller.measures import Measures, compute_measures
 from controller.runlog import RunLog, row_of
-from controller.scenario import Scenario
 from plant_sim.model import PlantModel
 from protocol.messages import on_the_wire_command, on_the_wire_state
+from protocol.scenario import Mode, Scenario
+from sim.measures import Measures, compute_measures
 
 
 @dataclass(frozen=True, slots=True)
@@ -25,23 +24,11 @@ class SimulationRun:
     measures: Measures
 
 
-def build_law(scenario: Scenario) -> ControlLaw:
-    return ControlLaw(
-        scenario.robot,
-        scenario.controller,
-        scenario.trajectory(),
-        scenario.obstacle,
-        make_coordinator(
-            scenario.mode, scenario.controller.switch_distance, scenario.controller.sensing_range
-        ),
-    )
-
-
 def simulate(scenario: Scenario, mode: Mode | None = None) -> SimulationRun:
     """Run ``scenario`` (in ``mode`` if given) from its first waypoint to the settled end."""
     if mode is not None:
         scenario = scenario.with_mode(mode)
-    law = build_law(scenario)
+    law = ControlLaw.for_scenario(scenario)
     plant = PlantModel(scenario.robot, scenario.plant, position=scenario.initial_joints())
     period = scenario.controller.period
     ticks = round(scenario.duration / period) + 1
@@ -51,6 +38,6 @@ def simulate(scenario: Scenario, mode: Mode | None = None) -> SimulationRun:
         t = start + tick * period
         position, velocity = on_the_wire_state(plant.position, plant.velocity)
         output = law.step(t, position)
-        log.append(row_of(t, position, velocity, output))
+        log.append(row_of(t, position, velocity, output, t))
         plant.advance(on_the_wire_command(output.command), period)
     return SimulationRun(scenario, log, compute_measures(scenario, log))

@@ -1,0 +1,49 @@
+"""What every command shares: ``-v`` for diagnostics through :mod:`logging` (python-can's
+way), and argparse types that check a number's range and name the flag when it is wrong."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+from collections.abc import Callable
+
+
+def add_verbosity(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="more diagnostics on stderr (-v: info, -vv: debug, python-can's too)",
+    )
+
+
+def configure_logging(verbosity: int) -> None:
+    """Warnings by default; ``-v`` adds the project's info, ``-vv`` debug from every library."""
+    logging.basicConfig(format="%(name)s: %(message)s", level=logging.WARNING)
+    if verbosity >= 2:
+        logging.getLogger().setLevel(logging.DEBUG)
+    elif verbosity == 1:
+        logging.getLogger("scara").setLevel(logging.INFO)
+
+
+def number(
+    low: float, high: float = math.inf, *, integer: bool = False, low_open: bool = False
+) -> Callable[[str], float]:
+    """An argparse ``type`` for a finite number in ``[low, high]`` (``(low, high]`` if
+    ``low_open``); argparse's error then names the flag and the bad value."""
+
+    def parse(text: str) -> float:
+        try:
+            value: float = int(text) if integer else float(text)
+        except ValueError:
+            kind = "an integer" if integer else "a number"
+            raise argparse.ArgumentTypeError(f"must be {kind}, got {text!r}") from None
+        too_low = value <= low if low_open else value < low
+        if not math.isfinite(value) or too_low or value > high:
+            bound = f"({low:g}" if low_open else f"[{low:g}"
+            raise argparse.ArgumentTypeError(f"must be in {bound}, {high:g}], got {text}")
+        return value
+
+    return parse
