@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from controller.behaviours import TURN_LEFT, TURN_RIGHT, avoid_obstacle, plan_tracking
-from controller.config import ControllerConfig
-from controller.coordination import ConventionalCoordinator, Mode
-from controller.obstacle import EllipticCylinder, measure
-from controller.scenario import load_scenario
-from controller.simulation import simulate
+from controller.coordination import ConventionalCoordinator
+from controller.obstacle import measure
+from protocol.config import ControllerConfig
 from protocol.errors import ConfigError
+from protocol.geometry import EllipticCylinder
+from protocol.scenario import Mode, load_scenario
+from sim.simulation import simulate
 
 CONFIG = ControllerConfig()
 

@@ -1,4 +1,4 @@
-"""FC's rule base (paper Table 2, DESIGN.md section 3) and its exact Mamdani inference."""
+"""FC's rule base (paper Table 2) and its exact Mamdani inference."""
 
 from __future__ import annotations
 

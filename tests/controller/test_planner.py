@@ -1,4 +1,4 @@
-"""Tests of PT, the cubic waypoint planner (paper eq. 20-25, DESIGN.md section 3)."""
+"""Tests of PT, the cubic waypoint planner (paper eq. 20-25)."""
 
 from __future__ import annotations
 
@@ -10,14 +10,55 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from controller.planner import (
-    CubicSegment,
-    Trajectory,
-    Trajectory1D,
-    solve_eq25,
-    waypoint_velocities,
-)
+from controller.planner import CubicSegment, Trajectory, check_plan, waypoint_velocities
 from protocol.errors import ConfigError
+from protocol.scenario import parse_scenario
+
+Coefficients = tuple[float, float, float, float]
+
+
+def solve_eq25(
+    t_i: float, t_j: float, q_i: float, v_i: float, q_j: float, v_j: float
+) -> Coefficients:
+    """The paper's eq. 24 solved literally (4x4 system in absolute time): the reference the
+    planner's closed form is checked against (slow and, for large t, badly conditioned)."""
+    m = np.array(
+        [
+            [1.0, t_i, t_i**2, t_i**3],
+            [0.0, 1.0, 2.0 * t_i, 3.0 * t_i**2],
+            [1.0, t_j, t_j**2, t_j**3],
+            [0.0, 1.0, 2.0 * t_j, 3.0 * t_j**2],
+        ]
+    )
+    k = np.linalg.solve(m, np.array([q_i, v_i, q_j, v_j]))
+    return (float(k[0]), float(k[1]), float(k[2]), float(k[3]))
+
+
+class OneAxis:
+    """A one-axis :class:`Trajectory` seen as scalars, for the single-axis properties."""
+
+    def __init__(
+        self,
+        times: list[float],
+        positions: list[float],
+        velocities: list[float] | None = None,
+    ) -> None:
+        self.trajectory = Trajectory(
+            times,
+            [(q,) for q in positions],
+            None if velocities is None else [(v,) for v in velocities],
+        )
+        self.times = self.trajectory.times
+        self.positions = tuple(point[0] for point in self.trajectory.points)
+        self.velocities = tuple(v[0] for v in self.trajectory.velocities)
+        self.segments = [self.trajectory.segment(i, 0) for i in range(len(self.times) - 1)]
+        self.duration = self.trajectory.duration
+        self.segment_index = self.trajectory.segment_index
+
+    def evaluate(self, t: float) -> tuple[float, float, float]:
+        q, qd, qdd = self.trajectory.evaluate(t)
+        return q[0], qd[0], qdd[0]
+
 
 # (t_i, t_j, q_i, v_i, q_j, v_j): rest-to-rest, moving ends, reversals, late and short ones.
 SEGMENTS = [
@@ -175,7 +216,7 @@ def test_trajectory_passes_waypoints_with_continuous_velocity(
     data: tuple[list[float], list[float]],
 ) -> None:
     times, positions = data
-    traj = Trajectory1D(times, positions)
+    traj = OneAxis(times, positions)
     vs = traj.velocities
     for t, q, v in zip(times, positions, vs, strict=True):
         p, pd, _ = traj.evaluate(t)
@@ -203,7 +244,7 @@ def test_rule_does_not_overshoot_when_slopes_are_comparable(
     slope is at most 5x this one; see test_rule_can_overshoot_next_to_a_steep_segment.
     """
     times, positions = data
-    traj = Trajectory1D(times, positions)
+    traj = OneAxis(times, positions)
     vs = traj.velocities
     for i, seg in enumerate(traj.segments):
         q_i, q_j = positions[i], positions[i + 1]
@@ -244,7 +285,7 @@ def test_monotone_waypoints_with_bounded_slope_ratio_give_monotone_path(
     for g, f in zip(gaps, factors, strict=False):
         times.append(times[-1] + g)
         positions.append(positions[-1] + sign * base * f * g)
-    traj = Trajectory1D(times, positions)
+    traj = OneAxis(times, positions)
     for i, seg in enumerate(traj.segments):
         lo, hi = sorted((positions[i], positions[i + 1]))
         tol = 1e-12 * max(1.0, abs(lo), abs(hi))
@@ -256,14 +297,14 @@ def test_monotone_waypoints_with_bounded_slope_ratio_give_monotone_path(
 
 def test_rule_can_overshoot_next_to_a_steep_segment() -> None:
     """The mean rule is not monotone in general: a gentle segment next to a steep one dips."""
-    traj = Trajectory1D([0.0, 1.0, 2.0], [0.0, 0.01, 10.0])
+    traj = OneAxis([0.0, 1.0, 2.0], [0.0, 0.01, 10.0])
     assert traj.velocities[1] == pytest.approx(5.0)
     q_mid, _, _ = traj.evaluate(0.5)
     assert q_mid < 0.0  # below both waypoints of the first segment
 
 
 def test_given_velocities_are_used() -> None:
-    traj = Trajectory1D([0.0, 1.0, 3.0], [0.0, 1.0, 0.0], velocities=[0.5, 0.2, -0.1])
+    traj = OneAxis([0.0, 1.0, 3.0], [0.0, 1.0, 0.0], velocities=[0.5, 0.2, -0.1])
     assert traj.velocities == (0.5, 0.2, -0.1)
     for t, q, v in zip(traj.times, traj.positions, traj.velocities, strict=True):
         p, pd, _ = traj.evaluate(t)
@@ -272,7 +313,7 @@ def test_given_velocities_are_used() -> None:
 
 
 def test_clamping_and_segment_index() -> None:
-    traj = Trajectory1D([1.0, 2.0, 4.0], [0.0, 2.0, 1.0])
+    traj = OneAxis([1.0, 2.0, 4.0], [0.0, 2.0, 1.0])
     assert traj.duration == 3.0
     assert traj.evaluate(0.0) == (0.0, 0.0, 0.0)
     assert traj.evaluate(-math.inf) == (0.0, 0.0, 0.0)
@@ -294,7 +335,7 @@ def test_clamping_and_segment_index() -> None:
 
 
 def test_acceleration_is_the_derivative_of_velocity() -> None:
-    traj = Trajectory1D([0.0, 0.7, 1.5, 2.0], [0.0, 0.4, -0.2, 0.3])
+    traj = OneAxis([0.0, 0.7, 1.5, 2.0], [0.0, 0.4, -0.2, 0.3])
     eps = 1e-6
     for t in (0.1, 0.69, 0.71, 1.2, 1.9):
         _, v_lo, _ = traj.evaluate(t - eps)
@@ -315,7 +356,7 @@ def test_multi_axis_matches_single_axis(
     ]
     points = [[axes[k][i] for k in range(dims)] for i in range(len(times))]
     traj = Trajectory(times, points)
-    singles = [Trajectory1D(times, axis) for axis in axes]
+    singles = [OneAxis(times, axis) for axis in axes]
     assert traj.dims == dims
     assert traj.times == tuple(times)
     assert traj.points == tuple(tuple(p) for p in points)
@@ -355,20 +396,20 @@ def test_multi_axis_given_velocities_and_segments() -> None:
         ([0.0, 1.0, 0.5], [0.0, 1.0, 2.0], None, "waypoints[2].t"),
         ([0.0, math.nan, 2.0], [0.0, 1.0, 2.0], None, "waypoints[1].t"),
         ([0.0, 1.0, math.inf], [0.0, 1.0, 2.0], None, "waypoints[2].t"),
-        ([0.0, 1.0], [0.0, math.nan], None, "waypoints[1].q"),
-        ([0.0, 1.0], [-math.inf, 0.0], None, "waypoints[0].q"),
+        ([0.0, 1.0], [0.0, math.nan], None, "waypoints[1].p[0]"),
+        ([0.0, 1.0], [-math.inf, 0.0], None, "waypoints[0].p[0]"),
         ([0.0, 1.0], [0.0, 1.0], [0.0], "velocities"),
-        ([0.0, 1.0], [0.0, 1.0], [0.0, math.nan], "waypoints[1].v"),
+        ([0.0, 1.0], [0.0, 1.0], [0.0, math.nan], "waypoints[1].v[0]"),
     ],
 )
-def test_trajectory1d_validation_names_the_field(
+def test_one_axis_validation_names_the_field(
     times: list[float],
     positions: list[float],
     velocities: list[float] | None,
     field: str,
 ) -> None:
     with pytest.raises(ConfigError) as info:
-        Trajectory1D(times, positions, velocities)
+        OneAxis(times, positions, velocities)
     assert info.value.field == field
     assert str(info.value).startswith(f"{field}: ")
 
@@ -412,3 +453,20 @@ def test_trajectory_validation_names_the_field(
     with pytest.raises(ConfigError) as info:
         Trajectory(times, points, velocities)
     assert info.value.field == field
+
+
+# --- a scenario's plan ------------------------------------------------------------------
+
+
+def test_path_leaving_the_workspace_between_waypoints_is_rejected() -> None:
+    # Both ends are reachable, but the straight move between them cuts into the inner
+    # hole of the annulus, where theta2 would pass its limit.
+    document = {
+        "waypoints": [
+            {"t": 0.0, "x": 0.2, "y": -0.05, "z": 0.22},
+            {"t": 2.0, "x": 0.0, "y": -0.2, "z": 0.22},
+        ]
+    }
+    with pytest.raises(ConfigError, match="leaves the workspace") as error:
+        check_plan(parse_scenario(document))
+    assert error.value.field == "waypoints[0..1]"

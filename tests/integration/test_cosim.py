@@ -1,24 +1,19 @@
 """Co-simulation: ``controller`` and ``plant_sim`` as two OS processes that talk CAN frames only.
 
-Each test runs the real node processes (``python -m ...``) on one transport: CAN over Zenoh
-on 127.0.0.1 (a free port and a channel of its own per test), or SocketCAN ``vcan0`` (marked
-``hil``; skipped where there is no vcan0). Where a test needs to see or say something on the
-bus it opens a bus of its own first (the ``observer``), which on Zenoh then holds the
-well-known port, so it sees every frame either node sends.
+Each test runs the real node processes on one transport: CAN over Zenoh through a router of
+the test's own on 127.0.0.1, or SocketCAN ``vcan0`` (marked ``hil``; skipped where there is no
+vcan0). Where a test needs to see or say something on the bus it opens a bus of its own (the
+``observer``) before the nodes start. Frames carry the observer's receive time.
 
-Frames are ordered by their timestamps: on Zenoh that is the sender's wall clock (all
-processes share it), on SocketCAN the kernel's receive time of the observer's socket.
-
-A failed test is run again, twice at most: with three Zenoh buses (observer, plant,
-controller) the two joiners sometimes never link to each other here (Zenoh's gossip; see
-``protocol/zenoh_can.py``), and a real-time run on this shared 2-core VM sometimes meets a
-stall longer than the stale-state watchdog's 6 ms. A real fault fails all three runs.
+The tests assert what the product must do (complete, fault or not, the measures), never how
+fast a shared machine was: a stall of the machine shows as a hold, and a hold is allowed.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import signal
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -29,12 +24,9 @@ from typing import Any
 import can
 import numpy as np
 import pytest
-from conftest import Observer, Processes, Transport
+from support import Observer, Process, Processes, Transport
 
-from controller.coordination import Mode
 from controller.runlog import COLUMNS
-from controller.scenario import load_scenario
-from controller.simulation import SimulationRun, simulate
 from protocol.codec import WIRE
 from protocol.errors import DecodeError
 from protocol.messages import (
@@ -45,24 +37,19 @@ from protocol.messages import (
     STATE_IDS,
     STEP,
     ControllerFault,
-    NodeId,
     NodeState,
-    PlantFault,
-    Request,
 )
+from protocol.scenario import Mode, load_scenario
+from sim.report import read_run
+from sim.simulation import SimulationRun, simulate
 
 SCENARIO = "reference"
 CONTROLLER_IDS = frozenset({COMMAND.frame_id, STEP.frame_id, CONTROLLER_STATUS.frame_id})
 PLANT_IDS = frozenset({*STATE_IDS, PLANT_STATUS.frame_id})
 FAULTS = "drop=0.05,corrupt=0.01"
-REALTIME_PRIORITY = ("--realtime-priority", "10")
-"""Real-time runs go under SCHED_FIFO (where permitted; a node says so and goes on where it is
-not): on a shared 2-core machine a node descheduled for more than 3 ticks (6 ms) otherwise
-faults the run with a stale joint state, as it should."""
 STARTUP = 15.0
 """s a node may take to start (import, open the bus) and reach the state a test waits for."""
-
-pytestmark = pytest.mark.flaky(reruns=2)
+STALE_TICKS = 3
 
 
 # --------------------------------------------------------------------------- helpers
@@ -71,6 +58,94 @@ pytestmark = pytest.mark.flaky(reruns=2)
 @cache
 def reference_run(mode: Mode) -> SimulationRun:
     return simulate(load_scenario(SCENARIO), mode)
+
+
+def launch(
+    processes: Processes, transport: Transport, out: Path, clock: str, *extra: str
+) -> tuple[int, dict[str, Any]]:
+    """Run ``scara-run`` to the end; its exit code and the run's report as a dict: the
+    controller's result, ``"plant"`` the plant's, ``"measures"`` those of the log."""
+    launcher = processes.start(
+        "sim.launch", SCENARIO, "--clock", clock, "--out", str(out), *transport.cli(), *extra,
+        name="launch",
+    )  # fmt: skip
+    code = launcher.wait(200)
+    return code, run_result(out, launcher)
+
+
+def run_result(out: Path, *processes: Process) -> dict[str, Any]:
+    """The run in ``out`` as a dict (see :func:`launch`); fails showing the outputs if absent."""
+    outputs = "\n".join(process.output() for process in processes)
+    assert (out / "controller.json").exists(), f"no controller result\n{outputs}"
+    assert (out / "plant_sim.json").exists(), f"no plant result\n{outputs}"
+    report = read_run(out)
+    result = dict(report.controller)
+    result["plant"] = report.plant
+    result["measures"] = report.measures.as_dict() if report.measures else None
+    return result
+
+
+def node_args(transport: Transport, clock: str, out: Path, *extra: str) -> list[str]:
+    return [SCENARIO, "--clock", clock, *transport.cli(), "--out", str(out), *extra]
+
+
+def decode(message: can.Message) -> tuple[Any, int, Any] | None:
+    """(codec, counter, record), or None for a frame that does not decode (corrupt)."""
+    try:
+        return WIRE.decode(message.arbitration_id, bytes(message.data))
+    except DecodeError:
+        return None
+
+
+def status_of(message: can.Message) -> tuple[int, int] | None:
+    """(State, FaultCode) of a valid ControllerStatus frame, else None."""
+    if message.arbitration_id != CONTROLLER_STATUS.frame_id:
+        return None
+    decoded = decode(message)
+    return None if decoded is None else (decoded[2].State, decoded[2].FaultCode)
+
+
+def command_of(message: can.Message) -> tuple[int, tuple[float, float, float]] | None:
+    """(Enable, rates) of a valid JointVelocityCommand frame, else None."""
+    if message.arbitration_id != COMMAND.frame_id:
+        return None
+    decoded = decode(message)
+    if decoded is None:
+        return None
+    record = decoded[2]
+    return record.Enable, (record.Theta1Rate, record.Theta2Rate, record.D3Rate)
+
+
+def controller_in(state: Any) -> Callable[[can.Message], bool]:
+    def matches(message: can.Message) -> bool:
+        status = status_of(message)
+        return status is not None and status[0] == state
+
+    return matches
+
+
+def by_time(frames: list[can.Message]) -> list[can.Message]:
+    return sorted(frames, key=lambda message: message.timestamp)
+
+
+def brief(result: dict[str, Any]) -> str:
+    """What a failure message should show of a result."""
+    keys = ("completed", "state", "faults", "e2e", "injected", "loop", "wall_time_s", "plant")
+    return json.dumps({key: result.get(key) for key in keys})
+
+
+def assert_run_is_clean(result: dict[str, Any], outputs: str) -> None:
+    """Completed, no faults, collision-free; the plant saw no collision; every stop of the
+    arm is one the controller held for (the coordination itself never stops it)."""
+    assert result["completed"], f"not completed: {brief(result)}\n{outputs}"
+    assert result["faults"] == [], f"controller faults: {brief(result)}\n{outputs}"
+    measures = result["measures"]
+    assert measures is not None, result
+    assert measures["collision_free"] is True, measures
+    plant = result["plant"]
+    assert plant["stats"]["collisions"] == 0, plant
+    assert "COLLISION" not in plant["faults"], plant
+    assert measures["stops"] <= result["loop"]["holds"], (measures, result["loop"])
 
 
 def same(a: Any, b: Any) -> bool:
@@ -86,120 +161,19 @@ def same(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
-def launch(
-    processes: Processes, transport: Transport, out: Path, clock: str, *extra: str
-) -> tuple[int, dict[str, Any]]:
-    """Run ``controller.launch`` to the end; its exit code and the controller's report with
-    the plant's stats under ``"plant"``. The launcher's ``--timeout`` (the controller's
-    ``--max-wall-time``) lets a faulted real-time run end soon; lockstep runs, slower with
-    injected faults, get more (a lockstep controller ignores it at present; ``wait`` bounds
-    every run)."""
-    launcher = processes.start(
-        "controller.launch",
-        SCENARIO,
-        "--clock",
-        clock,
-        "--out",
-        str(out),
-        "--timeout",
-        "25" if clock == "realtime" else "120",
-        *transport.cli(),
-        *extra,
-        name="launch",
-    )
-    code = launcher.wait(150)
-    result_file = out / "controller_result.json"
-    assert result_file.exists(), f"no controller result\n{launcher.output()}"
-    result = json.loads(result_file.read_text())
-    plant_file = out / "plant.json"
-    assert plant_file.exists(), f"no plant stats\n{launcher.output()}"
-    result["plant"] = json.loads(plant_file.read_text())
-    return code, result
-
-
-def node_args(transport: Transport, clock: str, *extra: str) -> list[str]:
-    priority = REALTIME_PRIORITY if clock == "realtime" else ()
-    return [SCENARIO, "--clock", clock, *transport.cli(), *priority, *extra]
-
-
-def decode(message: can.Message) -> tuple[Any, int, tuple[float, ...]] | None:
-    """(codec, counter, values), or None for a frame that does not decode (corrupt)."""
-    try:
-        return WIRE.decode(message.arbitration_id, bytes(message.data))
-    except DecodeError:
-        return None
-
-
-def status_state(message: can.Message) -> tuple[int, int] | None:
-    """(State, FaultCode) of a valid ControllerStatus frame, else None."""
-    if message.arbitration_id != CONTROLLER_STATUS.frame_id:
-        return None
-    decoded = decode(message)
-    if decoded is None:
-        return None
-    values = decoded[2]
-    return int(values[0]), int(values[1])
-
-
-def command_of(message: can.Message) -> tuple[int, tuple[float, float, float]] | None:
-    """(Enable, rates) of a valid JointVelocityCommand frame, else None."""
-    if message.arbitration_id != COMMAND.frame_id:
-        return None
-    decoded = decode(message)
-    if decoded is None:
-        return None
-    values = decoded[2]
-    return int(values[0]), (values[1], values[2], values[3])
-
-
-def controller_in(state: NodeState) -> Callable[[can.Message], bool]:
-    def matches(message: can.Message) -> bool:
-        status = status_state(message)
-        return status is not None and status[0] == state
-
-    return matches
-
-
-def by_time(frames: list[can.Message]) -> list[can.Message]:
-    return sorted(frames, key=lambda message: message.timestamp)
-
-
-def brief(result: dict[str, Any]) -> str:
-    """What a failure message should show of a result."""
-    keys = ("completed", "state", "faults", "e2e", "injected", "loop", "wall_time_s")
-    shown = {key: result.get(key) for key in keys}
-    if result.get("plant"):
-        shown["plant"] = result["plant"]
-    return json.dumps(shown)
-
-
-def assert_run_is_clean(result: dict[str, Any], outputs: str) -> None:
-    """Completed, no faults, collision-free, no stops; the plant saw no collision."""
-    assert result["completed"], f"not completed: {brief(result)}\n{outputs}"
-    assert result["faults"] == [], f"controller faults: {brief(result)}\n{outputs}"
-    measures = result["measures"]
-    assert measures is not None, result
-    assert measures["collision_free"] is True, measures
-    plant = result["plant"]
-    assert plant["stats"]["collisions"] == 0, plant
-    assert not plant["faults"] & PlantFault.COLLISION, plant
-
-
 def assert_bit_identical(result: dict[str, Any], out: Path, mode: Mode) -> None:
     """Measures equal to the in-process simulation's (after a JSON round trip, floats exact),
     and the logged time series equal bit for bit."""
     expected = reference_run(mode)
     want = json.loads(json.dumps(expected.measures.as_dict()))
-    got = result["measures"]
+    got = json.loads(json.dumps(result["measures"]))
     differing = {k: (got.get(k), want[k]) for k in want if not same(got.get(k), want[k])}
     assert same(got, want), f"measures differ from the in-process simulation: {differing}"
     with np.load(out / "controller_log.npz") as log:
         data, columns = log["data"], log["columns"]
     assert tuple(columns.tolist()) == COLUMNS
     simulated = expected.log.data
-    assert data.dtype == simulated.dtype
-    assert data.shape == simulated.shape
-    assert np.array_equal(data, simulated, equal_nan=True)
+    assert data.dtype == simulated.dtype and data.shape == simulated.shape
     if data.tobytes() != simulated.tobytes():
         rows = np.flatnonzero(np.any(data != simulated, axis=1))
         pytest.fail(f"log not bit-identical; first differing rows {rows[:5].tolist()}")
@@ -208,7 +182,7 @@ def assert_bit_identical(result: dict[str, Any], out: Path, mode: Mode) -> None:
 # --------------------------------------------------------------------------- 1. lockstep
 
 
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(240)
 @pytest.mark.parametrize("mode", [Mode.FUZZY, Mode.CONVENTIONAL], ids=lambda m: m.value)
 def test_lockstep_run_is_bit_identical_to_the_in_process_simulation(
     transport: Transport, processes: Processes, tmp_path: Path, mode: Mode
@@ -226,22 +200,16 @@ def test_lockstep_run_is_bit_identical_to_the_in_process_simulation(
 
 
 @pytest.mark.timeout(120)
-def test_realtime_fuzzy_run_completes_without_faults_or_stops(
+def test_realtime_fuzzy_run_completes_without_faults(
     transport: Transport, processes: Processes, tmp_path: Path
 ) -> None:
     out = tmp_path / "run"
-    code, result = launch(
-        processes, transport, out, "realtime", "--mode", "fuzzy", *REALTIME_PRIORITY
-    )
+    code, result = launch(processes, transport, out, "realtime", "--mode", "fuzzy")
     outputs = processes.outputs()
     assert code == 0, f"{brief(result)}\n{outputs}"
     assert result["clock"] == "realtime" and result["mode"] == "fuzzy"
     assert_run_is_clean(result, outputs)
-    assert result["measures"]["stops"] == 0, result["measures"]
-    assert result["loop"]["stale_faults"] == 0, result["loop"]
-
-
-# --------------------------------------------------------------------------- 3. start order
+    assert max(result["measures"]["waypoint_miss"]) < 0.005, result["measures"]
 
 
 @pytest.mark.timeout(120)
@@ -249,33 +217,25 @@ def test_realtime_controller_started_before_the_plant_still_completes(
     transport: Transport, processes: Processes, tmp_path: Path
 ) -> None:
     out = tmp_path / "run"
-    plant_stats = tmp_path / "plant.json"
     controller = processes.start(
         "controller.node",
-        *node_args(transport, "realtime", "--out", str(out), "--max-wall-time", "20"),
+        *node_args(transport, "realtime", out, "--max-wall-time", "40"),
         name="controller",
     )
     time.sleep(1.5)
     assert controller.poll() is None, controller.output()
-    plant = processes.start(
-        "plant_sim.node",
-        *node_args(transport, "realtime", "--stats", str(plant_stats)),
-        name="plant",
-    )
+    plant = processes.start("plant_sim.node", *node_args(transport, "realtime", out), name="plant")
     code = controller.wait(60)
     assert plant.interrupt() == 0, plant.output()
+    result = run_result(out, controller, plant)
     outputs = processes.outputs()
-    result = json.loads((out / "controller_result.json").read_text())
-    result["plant"] = json.loads(plant_stats.read_text())
     assert code == 0, f"{brief(result)}\n{outputs}"
     assert_run_is_clean(result, outputs)
-    assert result["measures"]["stops"] == 0, result["measures"]
-    # It really did wait for the plant: ticks without a joint state (at 500 Hz) before the run.
     loop = result["loop"]
-    assert loop["loops"] - loop["ticks"] > 100, loop
+    assert loop["loops"] - loop["ticks"] > 100, loop  # it did wait for the plant
 
 
-# --------------------------------------------------------------------------- 4. faults
+# --------------------------------------------------------------------------- 3. faults
 
 
 def corrupt_frames(frames: list[can.Message], ids: frozenset[int]) -> list[can.Message]:
@@ -287,7 +247,7 @@ def count_between(frames: list[can.Message], start: float, end: float) -> int:
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_lockstep_with_dropped_and_corrupted_frames_is_still_exact(
     transport: Transport,
     processes: Processes,
@@ -338,9 +298,6 @@ def test_lockstep_with_dropped_and_corrupted_frames_is_still_exact(
     assert len(bad_from_controller) == c_injected["corrupted"], summary
     assert len(bad_from_plant) == p_injected["corrupted"], summary
 
-    # The controller reads the bus from its first frame until the plant's answer to its
-    # last StepSync; the plant from its first frame until it is stopped, after the
-    # controller has exited.
     steps = [m for m in from_controller if m.arbitration_id == STEP.frame_id]
     c_first, c_last_step = from_controller[0].timestamp, steps[-1].timestamp
     c_last = from_controller[-1].timestamp
@@ -361,85 +318,87 @@ def test_lockstep_with_dropped_and_corrupted_frames_is_still_exact(
     )
 
 
-# --------------------------------------------------------------------------- 5./6. plant loss
+# --------------------------------------------------------------------------- 4. comms loss
 
 
 def start_realtime_pair(
-    transport: Transport, processes: Processes, out: Path, max_wall_time: float
-) -> tuple[Any, Any]:
-    plant = processes.start("plant_sim.node", *node_args(transport, "realtime"), name="plant")
+    transport: Transport, processes: Processes, out: Path, *controller_extra: str
+) -> tuple[Process, Process]:
+    plant = processes.start("plant_sim.node", *node_args(transport, "realtime", out), name="plant")
     controller = processes.start(
         "controller.node",
-        *node_args(transport, "realtime", "--out", str(out), "--max-wall-time", str(max_wall_time)),
+        *node_args(transport, "realtime", out, "--max-wall-time", "40", *controller_extra),
         name="controller",
     )
     return plant, controller
 
 
-def kill_plant_while_running(
-    observer: Observer, processes: Processes, plant: Any, controller: Any
-) -> float:
-    """Wait for the controller to run for 1.5 s, then SIGKILL the plant; return the kill time."""
+def wait_running(observer: Observer, processes: Processes, seconds: float) -> None:
+    """Wait until the controller reports RUNNING, then ``seconds`` more into the run."""
     running = observer.wait_for(controller_in(NodeState.RUNNING), STARTUP)
     assert running is not None, f"controller never reported RUNNING\n{processes.outputs()}"
-    time.sleep(1.5)
-    assert plant.poll() is None and controller.poll() is None, processes.outputs()
-    killed = time.time()
-    plant.kill()
-    return killed
+    time.sleep(seconds)
 
 
-def assert_stopped_after_plant_loss(frames: list[can.Message], killed: float) -> float:
-    """At most 3 enabled commands after the plant's last joint state, then only zero
-    commands; the controller reports FAULT (stale joint state). Returns the last state's time."""
-    states = [m for m in frames if m.arbitration_id in STATE_IDS]
-    assert states, "no joint state seen at all"
-    last_state = states[-1].timestamp
-    assert last_state <= killed + 0.05, "joint states after the plant was killed"
-    commands = [c for m in frames if m.timestamp > last_state and (c := command_of(m))]
-    enables = [enable for enable, _ in commands]
-    enabled = 0
-    while enabled < len(enables) and enables[enabled] == 1:
-        enabled += 1
-    assert enabled <= 3, f"{enabled} enabled commands after the last joint state"
-    rest = commands[enabled:]
-    assert rest, "no command at all after the enabled ones"
-    assert all(enable == 0 and rates == (0.0, 0.0, 0.0) for enable, rates in rest), (
-        f"after the stop: {[c for c in rest if c != (0, (0.0, 0.0, 0.0))][:5]}"
-    )
-    statuses = [s for m in frames if m.timestamp > last_state and (s := status_state(m))]
-    assert any(state == NodeState.FAULT for state, _ in statuses), statuses
-    first_fault = next(i for i, (state, _) in enumerate(statuses) if state == NodeState.FAULT)
-    for state, fault in statuses[first_fault:]:
-        assert state == NodeState.FAULT, statuses
-        assert fault & ControllerFault.STALE_STATE, statuses
-    return last_state
+def commands_between(frames: list[can.Message], start: float, end: float) -> list[Any]:
+    return [c for m in frames if start < m.timestamp < end and (c := command_of(m))]
 
 
-@pytest.mark.timeout(90)
-def test_realtime_controller_stops_and_faults_when_the_plant_dies(
-    transport: Transport,
-    processes: Processes,
-    observer_on: Callable[[Transport], Observer],
-    tmp_path: Path,
-) -> None:
-    observer = observer_on(transport)
-    out = tmp_path / "run"
-    plant, controller = start_realtime_pair(transport, processes, out, max_wall_time=6.0)
-    killed = kill_plant_while_running(observer, processes, plant, controller)
-    code = controller.wait(30)
-    time.sleep(0.3)
-    outputs = processes.outputs()
-    result = json.loads((out / "controller_result.json").read_text())
-    assert "STALE_STATE" in result["faults"], f"{result}\n{outputs}"
-    assert result["completed"] is False, result
-    assert result["state"] == "FAULT", result
-    assert code == 1, outputs
-    assert_stopped_after_plant_loss(by_time(observer.frames()), killed)
+ZERO = (0, (0.0, 0.0, 0.0))
+SETTLED = 0.025
+"""s after the last joint state reached the observer by which the controller has held:
+3 ticks (6 ms) and that state's way to the controller, with room for the machine's stalls."""
 
 
 @pytest.mark.timeout(120)
-def test_realtime_controller_resumes_after_plant_restart_and_reset(
+def test_plant_stopped_for_50_ms_the_controller_holds_resumes_and_completes(
+    transport: Transport,
+    processes: Processes,
+    observer_on: Callable[[Transport], Observer],
+    tmp_path: Path,
+) -> None:
+    """SIGSTOP the plant mid-run for 50 ms: the controller holds (zero, Enable = 0; the exact
+    3 ticks are the unit tests' with an injected clock), resumes on the first fresh state,
+    and the run completes collision-free.
+
+    The comms-loss timeout is raised to 0.5 s here so that the machine's own stalls, added
+    to the 50 ms, cannot turn the hold into a fault (the default is tested below). A stop
+    the controller did not see (the controller itself not scheduled all along) is applied
+    again, at most five times: it is the stimulus that is repeated, never the assertion."""
+    observer = observer_on(transport)
+    out = tmp_path / "run"
+    plant, controller = start_realtime_pair(transport, processes, out, "--comms-timeout", "0.5")
+    wait_running(observer, processes, 1.5)
+    for _ in range(5):
+        stopped = time.time()
+        plant.signal(signal.SIGSTOP)
+        time.sleep(0.05)
+        continued = time.time()
+        plant.signal(signal.SIGCONT)
+        time.sleep(0.2)
+        held = commands_between(observer.frames(), stopped, continued + 0.01)
+        if ZERO in held:
+            break
+    assert ZERO in held, f"the controller never held\n{processes.outputs()}"
+    frames = observer.frames()
+    last_state = max(
+        m.timestamp for m in frames if m.arbitration_id in STATE_IDS and m.timestamp < continued
+    )
+    settled = commands_between(frames, last_state + SETTLED, continued)
+    assert all(command == ZERO for command in settled), settled
+    resumed = commands_between(observer.frames(), continued, time.time())
+    assert any(enable == 1 for enable, _ in resumed), "control never resumed"
+    code = controller.wait(60)
+    assert plant.interrupt() == 0, plant.output()
+    result = run_result(out, controller, plant)
+    outputs = processes.outputs()
+    assert code == 0, f"{brief(result)}\n{outputs}"
+    assert_run_is_clean(result, outputs)
+    assert result["loop"]["holds"] >= 1, result["loop"]
+
+
+@pytest.mark.timeout(120)
+def test_plant_stopped_for_300_ms_latches_a_fault_with_zero_commands_and_the_plant_braked(
     transport: Transport,
     processes: Processes,
     observer_on: Callable[[Transport], Observer],
@@ -447,51 +406,82 @@ def test_realtime_controller_resumes_after_plant_restart_and_reset(
 ) -> None:
     observer = observer_on(transport)
     out = tmp_path / "run"
-    plant, controller = start_realtime_pair(transport, processes, out, max_wall_time=25.0)
-    killed = kill_plant_while_running(observer, processes, plant, controller)
+    plant, controller = start_realtime_pair(transport, processes, out)
+    wait_running(observer, processes, 1.5)
+    stopped = time.time()
+    plant.signal(signal.SIGSTOP)
+    time.sleep(0.3)
+    continued = time.time()  # a state received before this was sent before the stop
+    plant.signal(signal.SIGCONT)
+    time.sleep(1.0)  # the fault is latched: joint states flow again, the arm stays braked
+    frames = by_time(observer.frames())
+    controller.interrupt()
+    plant.interrupt()
+    result = run_result(out, controller, plant)
+    assert "STALE_STATE" in result["faults"], brief(result)
+    assert result["state"] == "FAULT" and not result["completed"], brief(result)
+
+    states = [m for m in frames if m.arbitration_id in STATE_IDS]
+    last_state = max(m.timestamp for m in states if m.timestamp < continued)
+    late = commands_between(frames, last_state + SETTLED, math.inf)
+    assert late and all(command == ZERO for command in late), late[:5]
+    statuses = [s for m in frames if m.timestamp > stopped + 0.2 and (s := status_of(m))]
+    assert statuses and all(state == NodeState.FAULT for state, _ in statuses), statuses
+    assert all(fault & ControllerFault.STALE_STATE for _, fault in statuses), statuses
+    # The plant braked: its last second of joint states shows every joint at rest.
+    final = [decode(m) for m in states if m.timestamp > frames[-1].timestamp - 0.3]
+    velocities = [d[2].Velocity for d in final if d is not None]
+    assert velocities and all(v == 0.0 for v in velocities), velocities[-6:]
+
+
+@pytest.mark.timeout(120)
+def test_controller_resumes_after_plant_killed_restarted_and_reset(
+    transport: Transport,
+    processes: Processes,
+    observer_on: Callable[[Transport], Observer],
+    tmp_path: Path,
+) -> None:
+    """Start the plant first, kill it (SIGKILL): the controller holds, then faults. A new
+    plant joins (the bus has no first process); after a reset the run completes."""
+    observer = observer_on(transport)
+    out = tmp_path / "run"
+    plant, controller = start_realtime_pair(transport, processes, out)
+    wait_running(observer, processes, 1.5)
+    killed = time.time()
+    plant.kill()
     faulted = observer.wait_for(
         lambda m: m.timestamp > killed and controller_in(NodeState.FAULT)(m), 5.0
     )
     assert faulted is not None, f"no FAULT status after the plant died\n{processes.outputs()}"
+    frames = by_time(observer.frames())
+    states = [m.timestamp for m in frames if m.arbitration_id in STATE_IDS]
+    assert max(states) <= killed + 0.05, "joint states after the plant was killed"
+    late = commands_between(frames, killed + SETTLED, math.inf)
+    assert late and all(command == ZERO for command in late), late[:5]
 
     restarted = time.time()
-    processes.start("plant_sim.node", *node_args(transport, "realtime"), name="plant2")
+    new_plant = processes.start(
+        "plant_sim.node", *node_args(transport, "realtime", out), name="plant2"
+    )
     new_state = observer.wait_for(
         lambda m: m.arbitration_id in STATE_IDS and m.timestamp > restarted, STARTUP
     )
-    assert new_state is not None, f"the new plant sends no joint state\n{processes.outputs()}"
+    assert new_state is not None, f"the new plant is not heard\n{processes.outputs()}"
     time.sleep(0.5)  # joint states flow, but the fault is latched until a reset
     before = by_time(observer.frames())
-    statuses = [s for m in before if m.timestamp > faulted.timestamp and (s := status_state(m))]
-    assert statuses and all(state == NodeState.FAULT for state, _ in statuses), statuses
-    enabled = [c for m in before if m.timestamp > killed + 0.1 and (c := command_of(m)) and c[0]]
-    assert enabled == [], "enabled commands while in fault"
-    assert controller.poll() is None, processes.outputs()
+    held = [s for m in before if m.timestamp > faulted.timestamp and (s := status_of(m))]
+    assert held and all(state == NodeState.FAULT for state, _ in held), held
+    assert ZERO in commands_between(before, faulted.timestamp, math.inf)
+    assert all(c == ZERO for c in commands_between(before, killed + SETTLED, math.inf))
 
-    reset = observer.send(
-        NODE_COMMAND.frame_id,
-        NODE_COMMAND.encode((Request.RESET, NodeId.CONTROLLER, NodeId.OPERATOR), 0),
-    )
+    record = NODE_COMMAND.Record(Command=1, Target=1, Source=3)  # reset, controller, operator
+    reset = observer.send(NODE_COMMAND.frame_id, NODE_COMMAND.encode(record, 0))
     running = observer.wait_for(
         lambda m: m.timestamp > reset and controller_in(NodeState.RUNNING)(m), 5.0
     )
     assert running is not None, f"no RUNNING status after the reset\n{processes.outputs()}"
-    resumed = observer.wait_for(
-        lambda m: m.timestamp > reset and (c := command_of(m)) is not None and c[0] == 1, 5.0
-    )
-    assert resumed is not None, "no enabled command after the reset"
-
-    # The reset restarted the scenario from the new plant's state, and control goes on. (That
-    # the rest of the run also completes needs this shared VM not to stall for 6 ms; the
-    # watchdog that would stop it is tested on its own.)
-    going_on = observer.wait_for(
-        lambda m: (
-            m.timestamp > resumed.timestamp + 1.0 and (c := command_of(m)) is not None and c[0] == 1
-        ),
-        5.0,
-    )
-    assert going_on is not None, "control stopped within a second of the reset"
-    controller.wait(40)
-    result = json.loads((out / "controller_result.json").read_text())
-    assert result["measures"]["collision_free"] is True, result["measures"]
-    assert result["loop"]["ticks"] > 1000, result["loop"]
+    code = controller.wait(60)
+    assert new_plant.interrupt() == 0, new_plant.output()
+    result = run_result(out, controller, new_plant)
+    assert code == 0, f"{brief(result)}\n{processes.outputs()}"
+    assert_run_is_clean(result, processes.outputs())

@@ -2,7 +2,7 @@
 
 - ``virtual``: python-can's in-process bus, plant and controller in two threads;
 - ``udp_multicast``: two real processes inside a network namespace made for the test, whose
-  loopback carries the multicast group (DESIGN.md section 6: never on the host's network).
+  loopback carries the multicast group (never on the host's network: ``docs/design.md``).
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from support import ROOT
 
-from controller.coordination import Mode
 from controller.node import ControllerNode
-from controller.process import ClockMode
-from controller.scenario import load_scenario
-from controller.simulation import simulate
 from plant_sim.node import PlantNode
+from protocol.node import ClockMode
+from protocol.scenario import Mode, load_scenario
+from sim.measures import compute_measures
+from sim.simulation import simulate
 
-ROOT = Path(__file__).resolve().parent.parent
 NAMESPACE_SETUP = (
     "ip link set lo up && ip link set lo multicast on && ip route add 239.0.0.0/8 dev lo"
 )
@@ -48,8 +48,8 @@ def test_lockstep_over_the_virtual_bus_is_bit_identical_to_the_simulation() -> N
         controller_bus.shutdown()
     expected = simulate(scenario)
     assert controller.finished
-    assert np.array_equal(controller.log.data, expected.log.data)
-    assert controller.result()["measures"] == expected.measures.as_dict()
+    assert np.array_equal(controller.log_rows.data, expected.log.data)
+    assert compute_measures(scenario, controller.log_rows) == expected.measures
 
 
 def _can_make_namespace() -> bool:
@@ -67,7 +67,7 @@ def _can_make_namespace() -> bool:
 def test_lockstep_over_udp_multicast_in_a_namespace(tmp_path: Path) -> None:
     pytest.importorskip("msgpack", reason="python-can[multicast] is not installed")
     launch = [
-        sys.executable, "-m", "controller.launch", "reference", "--clock", "lockstep",
+        sys.executable, "-m", "sim.launch", "reference", "--clock", "lockstep",
         "--interface", "udp_multicast", "--channel", "239.74.163.2", "--out", str(tmp_path),
     ]  # fmt: skip
     command = f"{NAMESPACE_SETUP} && exec {' '.join(launch)}"
@@ -79,9 +79,10 @@ def test_lockstep_over_udp_multicast_in_a_namespace(tmp_path: Path) -> None:
         timeout=120,
     )
     assert completed.returncode == 0, completed.stderr[-2000:]
-    result = json.loads((tmp_path / "controller_result.json").read_text())
+    result = json.loads((tmp_path / "controller.json").read_text())
     expected = simulate(load_scenario("reference"))
-    assert result["measures"] == json.loads(json.dumps(expected.measures.as_dict()))
+    with np.load(tmp_path / "controller_log.npz") as log:
+        assert np.array_equal(log["data"], expected.log.data)
     assert result["e2e"]["corrupt"] == 0
 
 

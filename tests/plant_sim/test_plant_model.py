@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plant_sim.model import PlantConfig, PlantModel
+from plant_sim.model import PlantModel
+from protocol.config import PlantConfig, RobotConfig
 from protocol.errors import ConfigError
-from protocol.robot import RobotConfig
 
 ROBOT = RobotConfig()
 PLANT = PlantConfig()

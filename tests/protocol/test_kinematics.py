@@ -9,18 +9,18 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from protocol.config import RobotConfig
 from protocol.errors import JointLimitError, ScaraError, UnreachableError
 from protocol.kinematics import (
     DAMPING_S2_REF,
     Elbow,
     forward,
     inverse,
-    inverse_any,
     jacobian_planar,
     joint_rates_for,
     reach_radii,
+    tcp_velocity,
 )
-from protocol.robot import RobotConfig
 
 CONFIG = RobotConfig()
 R_MIN, R_MAX = reach_radii(CONFIG)
@@ -106,8 +106,6 @@ def test_unreachable_points_raise(
     with pytest.raises(UnreachableError, match=fragment) as caught:
         inverse(CONFIG, *point, elbow)
     assert isinstance(caught.value, ScaraError)
-    with pytest.raises(UnreachableError):
-        inverse_any(CONFIG, *point, elbow)
 
 
 def test_behind_the_robot_violates_theta1_on_both_elbows() -> None:
@@ -115,8 +113,6 @@ def test_behind_the_robot_violates_theta1_on_both_elbows() -> None:
     for elbow in Elbow:
         with pytest.raises(JointLimitError, match=r"theta1 = .*limits \[-150\.000, 150\.000\]"):
             inverse(CONFIG, -0.59, 0.0, Z_MID, elbow)
-    with pytest.raises(JointLimitError, match="elbow UP"):
-        inverse_any(CONFIG, -0.59, 0.0, Z_MID, Elbow.UP)
 
 
 def test_inside_min_radius_violates_theta2() -> None:
@@ -125,18 +121,6 @@ def test_inside_min_radius_violates_theta2() -> None:
     with pytest.raises(JointLimitError, match="theta2") as caught:
         inverse(CONFIG, 0.08, 0.0, Z_MID)
     assert isinstance(caught.value, ScaraError)
-
-
-def test_inverse_any_falls_back_to_the_other_elbow() -> None:
-    point = (0.4 * math.cos(math.radians(-140)), 0.4 * math.sin(math.radians(-140)), Z_MID)
-    with pytest.raises(JointLimitError, match="theta1"):
-        inverse(CONFIG, *point, Elbow.DOWN)
-    joints = inverse_any(CONFIG, *point, Elbow.DOWN)
-    assert joints == inverse(CONFIG, *point, Elbow.UP)
-    assert joints[1] < 0.0
-    assert inverse_any(CONFIG, 0.3, 0.2, Z_MID, Elbow.UP) == inverse(
-        CONFIG, 0.3, 0.2, Z_MID, Elbow.UP
-    )
 
 
 def test_reach_radii() -> None:
@@ -169,6 +153,19 @@ def _apply(
 ) -> tuple[float, float]:
     j11, j12, j21, j22 = jacobian
     return (j11 * qdot[0] + j12 * qdot[1], j21 * qdot[0] + j22 * qdot[1])
+
+
+def test_tcp_velocity_is_the_jacobian_times_the_joint_rates_for_floats_and_arrays() -> None:
+    rng = np.random.default_rng(7)
+    theta1, theta2 = rng.uniform(-2.5, 2.5, 50), rng.uniform(-2.5, 2.5, 50)
+    rate1, rate2 = rng.uniform(-3.0, 3.0, 50), rng.uniform(-3.0, 3.0, 50)
+    vx, vy = tcp_velocity(CONFIG, theta1, theta2, rate1, rate2, np)
+    for i in range(50):
+        j11, j12, j21, j22 = jacobian_planar(CONFIG, theta1[i], theta2[i])
+        expected = (j11 * rate1[i] + j12 * rate2[i], j21 * rate1[i] + j22 * rate2[i])
+        one = tcp_velocity(CONFIG, float(theta1[i]), float(theta2[i]), rate1[i], rate2[i])
+        assert one == pytest.approx(expected, abs=1e-12)
+        assert (vx[i], vy[i]) == one  # the same formula on arrays, bit for bit
 
 
 @pytest.mark.parametrize("theta2", [-2.5, -1.0, -0.2, -math.asin(DAMPING_S2_REF), 0.2, 1.0, 2.5])
@@ -223,6 +220,3 @@ def test_round_trip_property(theta1: float, theta2: float, negative: bool, d3: f
     point = forward(CONFIG, theta1, theta2, d3)
     elbow = _elbow_of(theta2)
     assert inverse(CONFIG, *point, elbow) == pytest.approx((theta1, theta2, d3), abs=1e-9, rel=0.0)
-    assert forward(CONFIG, *inverse_any(CONFIG, *point, elbow)) == pytest.approx(
-        point, abs=1e-9, rel=0.0
-    )

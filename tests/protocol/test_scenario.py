@@ -10,9 +10,8 @@ from typing import Any
 
 import pytest
 
-from controller.coordination import Mode
-from controller.scenario import SCENARIO_DIR, load_scenario, parse_scenario
 from protocol.errors import ConfigError
+from protocol.scenario import SCENARIO_DIR, Mode, load_scenario, parse_scenario
 
 REFERENCE = tomllib.loads((SCENARIO_DIR / "reference.toml").read_text())
 
@@ -82,20 +81,6 @@ def test_bad_scenarios_name_the_field(change: Any, field: str) -> None:
         parse_scenario(broken(change))
     assert error.value.field == field, str(error.value)
     assert field in str(error.value)
-
-
-def test_path_leaving_the_workspace_between_waypoints_is_rejected() -> None:
-    # Both ends are reachable, but the straight move between them cuts into the inner
-    # hole of the annulus, where theta2 would pass its limit.
-    document = {
-        "waypoints": [
-            {"t": 0.0, "x": 0.2, "y": -0.05, "z": 0.22},
-            {"t": 2.0, "x": 0.0, "y": -0.2, "z": 0.22},
-        ]
-    }
-    with pytest.raises(ConfigError, match="leaves the workspace") as error:
-        parse_scenario(document)
-    assert error.value.field == "waypoints[0..1]"
 
 
 def test_unknown_scenario_name_lists_the_packaged_ones() -> None:

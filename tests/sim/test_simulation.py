@@ -5,12 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.coordination import Mode
-from controller.measures import WAYPOINT_TOLERANCE, compute_measures
 from controller.runlog import RunLog
-from controller.scenario import load_scenario
-from controller.sim_cli import main as sim_main
-from controller.simulation import SimulationRun, simulate
+from protocol.scenario import Mode, load_scenario
+from sim.cli import main as sim_main
+from sim.measures import WAYPOINT_TOLERANCE, compute_measures
+from sim.simulation import SimulationRun, simulate
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,209 @@
+"""The controller node against a test peer over python-can's in-process ``virtual`` bus, with
+an injected clock (canopen-style): the comms-loss policy (hold, resume, latched fault), E2E
+checks and e-stop."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+
+import can
+import pytest
+
+from controller.node import STALE_TICKS, ControllerNode
+from protocol.codec import WIRE
+from protocol.errors import ConfigError
+from protocol.messages import NODE_COMMAND, STATE, STOP, ControllerFault, NodeState
+from protocol.node import ClockMode
+from protocol.scenario import load_scenario
+
+SCENARIO = load_scenario("reference")
+ACCEL = SCENARIO.robot.accel_limits
+_channels = itertools.count()
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def buses() -> Iterator[tuple[can.BusABC, can.BusABC]]:
+    """The node's bus and the test's bus, on a fresh virtual channel."""
+    channel = f"controller-{next(_channels)}"
+    node_bus = can.Bus(interface="virtual", channel=channel)
+    peer = can.Bus(interface="virtual", channel=channel)
+    yield node_bus, peer
+    node_bus.shutdown()
+    peer.shutdown()
+
+
+def frame(frame_id: int, data: bytes) -> can.Message:
+    return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
+
+
+def send_state(peer: can.BusABC, counter: int, echo: int = 0) -> None:
+    position = SCENARIO.initial_joints()
+    for codec, joint_position in zip(STATE, position, strict=True):
+        record = codec.Record(CommandEcho=echo, Position=joint_position, Velocity=0.0)
+        peer.send(frame(codec.frame_id, codec.encode(record, counter)))
+
+
+def commands(peer: can.BusABC) -> list[tuple[float, ...]]:
+    """(Enable, rates...) of every command waiting on the test's bus."""
+    found = []
+    while (message := peer.recv(timeout=0.0)) is not None:
+        codec, _, record = WIRE.decode(message.arbitration_id, message.data)
+        if codec.name == "JointVelocityCommand":
+            found.append(tuple(record))
+    return found
+
+
+def tick(controller: ControllerNode, clock: FakeClock) -> None:
+    clock.now += controller.period
+    controller.realtime_tick(clock.now)
+
+
+def start_running(
+    peer: can.BusABC, controller: ControllerNode, clock: FakeClock, ticks: int = 200
+) -> int:
+    """Feed a fresh state every tick until the arm moves; return the next state counter."""
+    for counter in range(ticks):
+        send_state(peer, counter % 16)
+        tick(controller, clock)
+    assert controller.node_state is NodeState.RUNNING
+    return ticks % 16
+
+
+def test_controller_holds_after_three_ticks_without_state_and_resumes_from_rest(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    node_bus, peer = buses
+    clock = FakeClock()
+    controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
+    controller.realtime_tick(clock.now)
+    assert controller.node_state is NodeState.READY
+    assert commands(peer) == [(0, 0.0, 0.0, 0.0)]  # nothing to control yet: zero, disabled
+    counter = start_running(peer, controller, clock)
+    moving = commands(peer)[-1]
+    assert moving[0] == 1 and any(abs(rate) > 0.01 for rate in moving[1:])
+    plan_ticks = controller.tick
+    sent = []
+    for _ in range(STALE_TICKS + 2):
+        tick(controller, clock)
+        sent += commands(peer)
+    # Two more ticks on the last state, then zero with Enable = 0 at once:
+    assert [command[0] for command in sent] == [1] * (STALE_TICKS - 1) + [0] * 3
+    assert all(command == (0, 0.0, 0.0, 0.0) for command in sent[STALE_TICKS - 1 :])
+    assert controller.node_state is NodeState.HOLD
+    assert controller.tick == plan_ticks + STALE_TICKS - 1  # the plan's clock stopped
+    assert controller.stats.holds == 1
+    send_state(peer, counter)  # a fresh state: resume
+    tick(controller, clock)
+    resumed = commands(peer)
+    assert controller.node_state is NodeState.RUNNING
+    assert resumed[0][0] == 1
+    for rate, limit in zip(resumed[0][1:], ACCEL, strict=True):  # from zero, within the limit
+        assert abs(rate) <= limit * controller.period + 1e-3  # (+ wire quantisation)
+    # Held from the STALE_TICKS-th quiet tick to the tick that brought the fresh state:
+    held_ticks = (STALE_TICKS + 2) + 1 - STALE_TICKS
+    assert controller.stats.hold_time == pytest.approx(held_ticks * controller.period)
+    assert ControllerFault.STALE_STATE not in controller.fault
+
+
+def test_a_hold_longer_than_the_comms_timeout_latches_a_fault(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    node_bus, peer = buses
+    clock = FakeClock()
+    controller = ControllerNode(
+        node_bus, SCENARIO, ClockMode.REALTIME, comms_timeout=0.05, clock=clock
+    )
+    counter = start_running(peer, controller, clock, ticks=20)
+    states = []
+    for _ in range(40):  # 80 ms without a joint state
+        tick(controller, clock)
+        states.append(controller.node_state)
+    assert NodeState.HOLD in states
+    assert controller.node_state is NodeState.FAULT
+    assert ControllerFault.STALE_STATE in controller.fault
+    assert states.index(NodeState.FAULT) * controller.period == pytest.approx(0.05, abs=0.004)
+    commands(peer)
+    send_state(peer, counter)  # the plant is back: the fault stays until a reset
+    tick(controller, clock)
+    assert controller.node_state is NodeState.FAULT
+    assert commands(peer) == [(0, 0.0, 0.0, 0.0)]
+    reset = NODE_COMMAND.Record(Command=1, Target=1, Source=3)
+    peer.send(frame(NODE_COMMAND.frame_id, NODE_COMMAND.encode(reset, 0)))
+    send_state(peer, (counter + 1) % 16)
+    tick(controller, clock)
+    assert controller.node_state is NodeState.RUNNING and not controller.fault
+
+
+def test_comms_timeout_must_exceed_the_hold_ticks() -> None:
+    bus = can.Bus(interface="virtual", channel="comms-timeout")
+    try:
+        with pytest.raises(ConfigError) as error:
+            ControllerNode(bus, SCENARIO, ClockMode.REALTIME, comms_timeout=0.004)
+        assert error.value.field == "--comms-timeout"
+    finally:
+        bus.shutdown()
+
+
+def test_controller_ignores_corrupt_and_mixed_state_frames(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    node_bus, peer = buses
+    controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=FakeClock())
+    position = SCENARIO.initial_joints()
+    record = STATE[0].Record(CommandEcho=0, Position=position[0], Velocity=0.0)
+    data = bytearray(STATE[0].encode(record, 0))
+    data[4] ^= 0x01
+    peer.send(frame(STATE[0].frame_id, bytes(data)))
+    for codec, joint_position in zip(STATE[1:], position[1:], strict=True):
+        good = codec.Record(CommandEcho=0, Position=joint_position, Velocity=0.0)
+        peer.send(frame(codec.frame_id, codec.encode(good, 0)))
+    controller.drain()
+    assert controller.state is None  # joint 1 never arrived intact: no joint state
+    assert controller.monitor.counts.corrupt == 1
+    send_state(peer, 1, echo=2)
+    controller.drain()
+    assert controller.state is not None and controller.state.position == pytest.approx(position)
+
+
+def test_controller_goes_to_estop_on_an_emergency_stop(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    node_bus, peer = buses
+    clock = FakeClock()
+    controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
+    send_state(peer, 0)
+    controller.realtime_tick(clock.now)
+    peer.send(frame(STOP.frame_id, STOP.encode(STOP.Record(Source=2), 0)))
+    send_state(peer, 1)
+    tick(controller, clock)
+    assert controller.node_state is NodeState.ESTOP
+    assert commands(peer)[-1] == (0, 0.0, 0.0, 0.0)
+
+
+def test_the_run_clock_counts_holds_the_plan_clock_does_not(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    node_bus, peer = buses
+    clock = FakeClock()
+    controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
+    counter = start_running(peer, controller, clock, ticks=10)
+    for _ in range(STALE_TICKS + 5):
+        tick(controller, clock)
+    send_state(peer, counter)
+    tick(controller, clock)
+    log = controller.log_rows
+    # Of the quiet ticks, the first STALE_TICKS - 1 still controlled (on the last state);
+    # the rest held: no control step, no row, but the run's clock went on.
+    without_row = STALE_TICKS + 5 - (STALE_TICKS - 1)
+    assert log["t"][-1] - log["t"][-2] == pytest.approx(controller.period)
+    gap = log["clock"][-1] - log["clock"][-2]
+    assert gap == pytest.approx((without_row + 1) * controller.period)

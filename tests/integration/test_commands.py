@@ -1,0 +1,102 @@
+"""Every command as a user meets it: ``--help`` and ``-v`` everywhere, and a bad flag, a bad
+scenario or a bad transport exits with status 2 and a message naming it, sending nothing."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from support import ROOT
+
+COMMANDS = {
+    "scara-sim": "sim.cli",
+    "scara-run": "sim.launch",
+    "scara-report": "sim.report",
+    "scara-router": "protocol.zenoh_can.router",
+    "scara-busload": "protocol.busload.report",
+    "controller": "controller.node",
+    "plant_sim": "plant_sim.node",
+}
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def run(module: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", module, *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_every_command_is_installed_with_its_module() -> None:
+    scripts = {ep.name: ep.value for ep in importlib.metadata.entry_points(group="console_scripts")}
+    for command, module in COMMANDS.items():
+        assert scripts.get(command) == f"{module}:main", command
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_help_explains_the_command_and_offers_verbosity(command: str) -> None:
+    done = run(COMMANDS[command], "--help")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage:") and "-v, --verbose" in done.stdout
+
+
+@pytest.mark.parametrize(
+    ("command", "args", "named"),
+    [
+        ("controller", ["reference", "--rate", "0"], "--rate"),
+        ("plant_sim", ["reference", "--rate", "0"], "--rate"),
+        ("controller", ["reference", "--rate", "5000"], "--rate"),
+        ("scara-run", ["reference", "--rate", "-1"], "--rate"),
+        ("controller", ["reference", "--comms-timeout", "0"], "--comms-timeout"),
+        ("controller", ["reference", "--max-wall-time", "nan"], "--max-wall-time"),
+        ("plant_sim", ["reference", "--duration", "-3"], "--duration"),
+        ("controller", ["reference", "--realtime-priority", "100"], "--realtime-priority"),
+        ("scara-run", ["reference", "--timeout", "0"], "--timeout"),
+        ("scara-router", ["--port", "70000"], "--port"),
+        ("scara-busload", ["--rate", "0"], "--rate"),
+        ("controller", ["reference", "--comms-timeout", "0.004"], "--comms-timeout"),
+        ("controller", ["reference", "--inject-faults", "drop=2"], "inject-faults.drop"),
+        ("plant_sim", ["no-such-scenario"], "scenario"),
+        ("scara-run", ["no-such-scenario"], "scenario"),
+        ("scara-sim", ["no-such-scenario"], "scenario"),
+    ],
+)
+def test_a_bad_value_exits_2_naming_it(command: str, args: list[str], named: str) -> None:
+    done = run(COMMANDS[command], *args, "--interface", "virtual") if command in (
+        "controller", "plant_sim"
+    ) else run(COMMANDS[command], *args)  # fmt: skip
+    assert done.returncode == 2, (done.returncode, done.stdout, done.stderr)
+    assert named in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_a_bad_scenario_file_names_the_field(tmp_path: Path) -> None:
+    scenario = tmp_path / "bad.toml"
+    scenario.write_text(
+        "[[waypoints]]\nt = 0.0\nx = 0.4\ny = 0.1\nz = 0.25\n"
+        "[[waypoints]]\nt = 1.0\nx = 0.9\ny = 0.32\nz = 0.26\n"
+    )
+    done = run("controller.node", str(scenario), "--interface", "virtual")
+    assert done.returncode == 2
+    assert "waypoints[1]" in done.stderr and "out of reach" in done.stderr
+
+
+def test_a_node_without_a_router_says_how_to_start_one(port: int) -> None:
+    done = run(
+        "plant_sim.node", "--interface", "zenoh", "--bus-option", f"port={port}",
+        "--bus-option", "open_timeout=0.5",
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert "scara-router" in done.stderr and str(port) in done.stderr
+
+
+def test_scara_report_of_a_missing_run_exits_2(tmp_path: Path) -> None:
+    done = run("sim.report", str(tmp_path / "nothing"))
+    assert done.returncode == 2 and "cannot read the run" in done.stderr

@@ -1,0 +1,31 @@
+"""The receiving side of the E2E header (``protocol.e2e``): alive counters per frame ID."""
+
+from __future__ import annotations
+
+from protocol.e2e import Check, E2EMonitor
+
+
+def test_alive_counter_classification() -> None:
+    monitor = E2EMonitor()
+    sequence = [(5, Check.FIRST), (6, Check.OK), (6, Check.REPEATED), (9, Check.LOST)]
+    sequence += [(7, Check.STALE), (10, Check.OK), (15, Check.LOST), (0, Check.OK)]
+    for counter, expected in sequence:
+        assert monitor.check(0x100, counter) is expected, counter
+    assert monitor.check(0x200, 3) is Check.FIRST  # each frame ID has its own counter
+    counts = monitor.counts
+    assert (counts.repeated, counts.stale, counts.lost) == (1, 1, 2 + 4)
+    assert [c.usable for c in (Check.FIRST, Check.OK, Check.LOST)] == [True] * 3
+    assert not Check.REPEATED.usable and not Check.STALE.usable
+    monitor.forget()
+    assert monitor.check(0x100, 3) is Check.FIRST
+
+
+def test_alive_counter_resynchronises_after_a_long_gap() -> None:
+    monitor = E2EMonitor()
+    monitor.check(0x110, 0)
+    # Ten frames lost: 11 looks like an old frame (stale), but 12 continues it, so the
+    # sender has moved on and the receiver follows instead of rejecting everything after.
+    assert [monitor.check(0x110, c) for c in (11, 12, 13)] == [Check.STALE, Check.OK, Check.OK]
+    # A single late frame does not move the receiver back.
+    assert monitor.check(0x110, 10) is Check.STALE
+    assert monitor.check(0x110, 14) is Check.OK

@@ -1,0 +1,51 @@
+"""Fault injection (``protocol.faults``): the spec names a bad field; the injector drops and
+corrupts the share of frames it is told to, and only those."""
+
+from __future__ import annotations
+
+import can
+import pytest
+
+from protocol.codec import WIRE
+from protocol.errors import ConfigError, DecodeError
+from protocol.faults import FaultInjector, FaultSpec
+from protocol.messages import COMMAND
+
+
+def test_fault_spec_parsing_names_the_field() -> None:
+    assert FaultSpec.parse("drop=0.05,corrupt=0.01,seed=3") == FaultSpec(0.05, 0.01, 3)
+    with pytest.raises(ConfigError) as error:
+        FaultSpec.parse("drop=2")
+    assert error.value.field == "inject-faults.drop"
+    with pytest.raises(ConfigError) as error:
+        FaultSpec.parse("jitter=0.1")
+    assert error.value.field == "inject-faults.jitter"
+
+
+def test_the_injector_drops_and_corrupts_the_share_it_is_told_to() -> None:
+    inner = can.Bus(interface="virtual", channel="faults", receive_own_messages=False)
+    listener = can.Bus(interface="virtual", channel="faults")
+    injector = FaultInjector(inner, FaultSpec(drop=0.1, corrupt=0.05, seed=4))
+    try:
+        record = COMMAND.Record(Enable=1, Theta1Rate=0.5, Theta2Rate=-0.25, D3Rate=0.0)
+        for counter in range(2000):
+            data = COMMAND.encode(record, counter % 16)
+            injector.send(
+                can.Message(arbitration_id=COMMAND.frame_id, data=data, is_extended_id=False)
+            )
+        received = []
+        while (message := listener.recv(0.0)) is not None:
+            received.append(message)
+    finally:
+        injector.shutdown()
+        listener.shutdown()
+    counts = injector.counts
+    assert counts.sent == len(received) == 2000 - counts.dropped
+    assert 150 < counts.dropped < 250 and 60 < counts.corrupted < 140
+    corrupt = 0
+    for message in received:
+        try:
+            WIRE.decode(message.arbitration_id, bytes(message.data))
+        except DecodeError:
+            corrupt += 1
+    assert corrupt == counts.corrupted  # one flipped bit: the CRC catches every one

@@ -1,0 +1,250 @@
+"""Helpers the tests share (the fixtures built on them are in ``conftest.py``).
+
+- :func:`free_port`: a TCP port free on 127.0.0.1 right now.
+- :class:`Transport`: a python-can interface + channel (+ bus keyword arguments).
+- :class:`Processes`: children started as ``python -m MODULE ...`` in their own process
+  groups, output to files; whatever still runs at the end is killed.
+- :class:`Observer`: a bus of the test's own that records every frame it receives.
+- :func:`wait_until`: a bounded wait for a condition.
+
+Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
+127.0.0.1, with an explicit port.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    """A TCP port nobody holds right now on 127.0.0.1."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
+    """Poll ``condition`` until it holds; fail naming ``what`` after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.005)
+
+
+@dataclass(frozen=True)
+class Transport:
+    """A python-can interface + channel (+ bus keyword arguments) the nodes share."""
+
+    interface: str
+    channel: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def cli(self) -> list[str]:
+        """The node / launcher command-line flags that select this transport."""
+        args = ["--interface", self.interface, "--channel", self.channel]
+        for key, value in self.options.items():
+            args += ["--bus-option", f"{key}={value}"]
+        return args
+
+    def open_bus(self) -> can.BusABC:
+        return can.Bus(interface=self.interface, channel=self.channel, **self.options)
+
+
+class Process:
+    """One child process started by :class:`Processes`; output goes to a file."""
+
+    def __init__(self, name: str, argv: Sequence[str], log: Path) -> None:
+        self.name = name
+        self.argv = list(argv)
+        self.log = log
+        self._log_file = log.open("wb")
+        self.started = time.time()
+        self.popen = subprocess.Popen(
+            self.argv,
+            cwd=ROOT,
+            stdin=subprocess.DEVNULL,
+            stdout=self._log_file,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,  # its own process group: children die with it
+        )
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def poll(self) -> int | None:
+        return self.popen.poll()
+
+    def wait(self, timeout: float) -> int:
+        """The exit code; fails the test (after killing it) if it runs past ``timeout``."""
+        try:
+            return self.popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            raise AssertionError(
+                f"{self.name} still running after {timeout} s\n{self.output()}"
+            ) from None
+
+    def interrupt(self, grace: float = 5.0) -> int:
+        """SIGINT (a node's clean stop), SIGKILL if it has not exited after ``grace`` s."""
+        if self.popen.poll() is None:
+            self.popen.send_signal(signal.SIGINT)
+            try:
+                self.popen.wait(grace)
+            except subprocess.TimeoutExpired:
+                self.kill()
+        return self.popen.returncode
+
+    def signal(self, number: int) -> None:
+        """Send ``number`` (SIGSTOP, SIGCONT, ...) to the process."""
+        os.kill(self.popen.pid, number)
+
+    def kill(self) -> None:
+        """SIGKILL to this process's group (the process itself and any children it started)."""
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        self.popen.wait(10)
+
+    def output(self, tail: int = 4000) -> str:
+        self._log_file.flush()
+        text = self.log.read_text(errors="replace")
+        return f"--- {self.name} (exit {self.popen.returncode}) output ---\n{text[-tail:]}"
+
+    def close(self) -> None:
+        if self.popen.poll() is None:
+            self.kill()
+        else:  # the group may still hold children of an exited launcher
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(self.popen.pid, signal.SIGKILL)
+        self._log_file.close()
+
+
+class Processes:
+    """Starts ``python -m MODULE ARGS`` children; :meth:`close` kills what is left."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.started: list[Process] = []
+
+    def start(self, module: str, *args: str, name: str | None = None) -> Process:
+        name = name or f"{module}#{len(self.started)}"
+        log = self.folder / f"{name.replace('/', '_')}.log"
+        process = Process(name, [sys.executable, "-m", module, *args], log)
+        self.started.append(process)
+        return process
+
+    def outputs(self) -> str:
+        return "\n".join(process.output() for process in self.started)
+
+    def close(self) -> None:
+        for process in reversed(self.started):
+            process.close()
+
+
+class Observer:
+    """A bus of the test's own: records every frame it receives, in a background thread."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
+        self._frames: list[can.Message] = []
+        self._lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="observer", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                message = self.bus.recv(0.05)
+            except can.CanError:
+                return
+            if message is None:
+                continue
+            with self._changed:
+                self._frames.append(message)
+                self._changed.notify_all()
+
+    def frames(self) -> list[can.Message]:
+        """Every frame received so far, in arrival order."""
+        with self._lock:
+            return list(self._frames)
+
+    def wait_for(
+        self, predicate: Callable[[can.Message], bool], timeout: float, start: int = 0
+    ) -> can.Message | None:
+        """The first frame (from index ``start`` on) satisfying ``predicate``; None on timeout."""
+        deadline = time.monotonic() + timeout
+        index = start
+        with self._changed:
+            while True:
+                while index < len(self._frames):
+                    if predicate(self._frames[index]):
+                        return self._frames[index]
+                    index += 1
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._changed.wait(min(left, 0.1))
+
+    def send(self, frame_id: int, data: bytes) -> float:
+        """Send one standard frame; return the wall-clock time it was sent."""
+        sent = time.time()
+        self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+        return sent
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self.bus.shutdown()
+
+
+def frames_with_every_flag() -> list[can.Message]:
+    """Standard, extended, remote, error, FD with BRS and ESI, empty and full payloads."""
+    t0 = 1_700_000_000.123456
+    return [
+        can.Message(timestamp=t0, arbitration_id=0x123, is_extended_id=False, data=b"\x01\x02"),
+        can.Message(timestamp=t0 + 1, arbitration_id=0x1ABCDEF0, is_extended_id=True, data=b""),
+        can.Message(
+            timestamp=t0 + 2, arbitration_id=0x7FF, is_extended_id=False, data=bytes(range(8))
+        ),
+        can.Message(
+            timestamp=t0 + 3, arbitration_id=0x10, is_extended_id=False, is_remote_frame=True, dlc=4
+        ),
+        can.Message(timestamp=t0 + 4, arbitration_id=0x0, is_error_frame=True, data=bytes(8)),
+        can.Message(
+            timestamp=t0 + 5,
+            arbitration_id=0x18FF50E5,
+            is_extended_id=True,
+            is_fd=True,
+            bitrate_switch=True,
+            error_state_indicator=True,
+            data=bytes(range(64)),
+        ),
+        can.Message(
+            timestamp=t0 + 6, arbitration_id=0x55, is_extended_id=False, is_fd=True, data=b"x" * 12
+        ),
+    ]
+
+
+def same_frame(a: can.Message, b: can.Message, *, timestamps: bool = True) -> bool:
+    """Equal in every field (and timestamp, unless ``timestamps`` is False: a bus stamps
+    its own receive time)."""
+    delta = 0.0 if timestamps else None
+    return a.equals(b, timestamp_delta=delta, check_channel=False, check_direction=False)
