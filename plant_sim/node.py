@@ -196,14 +196,11 @@ class PlantNode(Node):
 
     def _send_state(self) -> None:
         """JointState1-3 with one alive counter: together they are one joint state."""
-        counter = self._state_counter.next()
-        for codec, position, velocity in zip(
-            STATE, self.model.position, self.model.velocity, strict=True
-        ):
-            record = codec.Record(
-                CommandEcho=self.command_echo, Position=position, Velocity=velocity
-            )
-            self.send(codec, record, counter)
+        frames = [
+            (codec, codec.Record(CommandEcho=self.command_echo, Position=p, Velocity=v))
+            for codec, p, v in zip(STATE, self.model.position, self.model.velocity, strict=True)
+        ]
+        self.send_together(frames, self._state_counter.next())
         self.stats.states_sent += 1
 
     def status_record(self) -> Any:

@@ -91,3 +91,14 @@ def open_bus(interface: str | None, channel: str | None, options: dict[str, Any]
 
 def open_bus_from_args(args: argparse.Namespace) -> can.BusABC:
     return open_bus(args.interface, args.channel, parse_options(args.bus_option))
+
+
+def send_frames(bus: can.BusABC, messages: Sequence[can.Message]) -> None:
+    """Send frames that belong together: as one unit where the transport can (CAN over
+    Zenoh's ``send_many``), else one after the other."""
+    send_many = getattr(bus, "send_many", None)
+    if send_many is not None:
+        send_many(messages)
+        return
+    for message in messages:
+        bus.send(message)

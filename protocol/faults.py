@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import argparse
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import can
 
+from protocol.bus import send_frames
 from protocol.errors import ConfigError
 
 
@@ -61,10 +63,22 @@ class FaultInjector(can.BusABC):
         self.channel_info = f"faulty({getattr(inner, 'channel_info', '?')})"
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        survivor = self._through(msg)
+        if survivor is not None:
+            self.inner.send(survivor, timeout)
+
+    def send_many(self, messages: Sequence[can.Message]) -> None:
+        """Frames sent together: each one dropped or corrupted on its own."""
+        survivors = [m for m in map(self._through, messages) if m is not None]
+        if survivors:
+            send_frames(self.inner, survivors)
+
+    def _through(self, msg: can.Message) -> can.Message | None:
+        """``msg`` as the wire passes it: None if dropped, with one bit flipped if corrupted."""
         draw = self._random.random()
         if draw < self.spec.drop:
             self.counts.dropped += 1
-            return
+            return None
         if draw < self.spec.drop + self.spec.corrupt and msg.dlc:
             data = bytearray(msg.data)
             bit = self._random.randrange(8 * len(data))
@@ -77,7 +91,7 @@ class FaultInjector(can.BusABC):
             )
             self.counts.corrupted += 1
         self.counts.sent += 1
-        self.inner.send(msg, timeout)
+        return msg
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         return self.inner.recv(timeout), True

@@ -29,7 +29,7 @@ from typing import Any, ClassVar
 
 import can
 
-from protocol.bus import add_bus_arguments, open_bus_from_args
+from protocol.bus import add_bus_arguments, open_bus_from_args, send_frames
 from protocol.cli import add_verbosity, configure_logging, number
 from protocol.codec import WIRE, MessageCodec
 from protocol.config import MAX_RATE_HZ, MIN_RATE_HZ
@@ -131,23 +131,31 @@ class Node:
 
     # --- frames out ---------------------------------------------------------------------
 
-    def send(self, codec: MessageCodec, record: Any, counter: int | None = None) -> int:
-        """Encode ``record`` with the next alive counter of its ID (or ``counter``, for frames
-        that share one) and send it; return the counter.
+    def send(self, codec: MessageCodec, record: Any) -> int:
+        """Encode ``record`` with the next alive counter of its ID and send it; the counter.
 
         :class:`EncodeError` is the caller's to handle (it means a value is out of range).
         """
-        if counter is None:
-            counter = self._counters[codec.frame_id].next()
+        counter = self._counters[codec.frame_id].next()
+        self._transmit([self._frame(codec, record, counter)])
+        return counter
+
+    def send_together(self, frames: Sequence[tuple[MessageCodec, Any]], counter: int) -> None:
+        """Frames that are one unit (JointState1-3) with one shared alive counter, sent
+        together where the transport can (:func:`protocol.bus.send_frames`)."""
+        self._transmit([self._frame(codec, record, counter) for codec, record in frames])
+
+    @staticmethod
+    def _frame(codec: MessageCodec, record: Any, counter: int) -> can.Message:
         data = codec.encode(record, counter)
+        return can.Message(arbitration_id=codec.frame_id, data=data, is_extended_id=False)
+
+    def _transmit(self, messages: list[can.Message]) -> None:
         try:
-            self.bus.send(
-                can.Message(arbitration_id=codec.frame_id, data=data, is_extended_id=False)
-            )
+            send_frames(self.bus, messages)
         except can.CanError as error:  # the next tick sends again; say so, count it, go on
             self.send_failures += 1
             self.log.warning("send failed: %s", error)
-        return counter
 
     def send_status_if_due(self, now: float) -> None:
         """The status frame, once per its DBC cycle time."""

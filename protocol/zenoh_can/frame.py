@@ -1,11 +1,13 @@
-"""The CAN-over-Zenoh frame format: one Zenoh sample per CAN frame.
+"""The CAN-over-Zenoh frame format: one Zenoh sample carries the frames sent together.
 
-A 14-byte little-endian header ``<dIBB`` (timestamp float64 in seconds since the epoch,
-arbitration id uint32, flags uint8, dlc uint8) followed by the data bytes. Flags: 0x01
-extended id, 0x02 remote, 0x04 error frame, 0x08 CAN FD, 0x10 bit rate switch, 0x20 error
-state indicator; 0x40 and 0x80 are reserved and must be 0. The timestamp is the sender's
-clock when it sent the frame; a receiving bus stamps its own receive time on the message, as
-python-can's other interfaces do.
+Each frame is a 15-byte little-endian header ``<dIBBB`` (timestamp float64 in seconds since
+the epoch, arbitration id uint32, flags uint8, dlc uint8, data length uint8) followed by its
+data bytes; a sample is one or more frames back to back, in the order they were sent (a
+plant's three joint-state frames travel as one sample: one message for the router and for
+every receiver instead of three). Flags: 0x01 extended id, 0x02 remote, 0x04 error frame,
+0x08 CAN FD, 0x10 bit rate switch, 0x20 error state indicator; 0x40 and 0x80 are reserved
+and must be 0. The timestamp is the sender's clock when it sent the frame; a receiving bus
+stamps its own receive time on the message, as python-can's other interfaces do.
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ from typing import Final
 
 from can import Message
 
-#: timestamp float64, arbitration id uint32, flags uint8, dlc uint8; data bytes follow.
-HEADER: Final = struct.Struct("<dIBB")
+#: timestamp float64, arbitration id uint32, flags uint8, dlc uint8, data length uint8;
+#: the data bytes follow.
+HEADER: Final = struct.Struct("<dIBBB")
 
 FLAG_EXTENDED: Final = 0x01
 FLAG_REMOTE: Final = 0x02
@@ -54,17 +57,34 @@ def encode_frame(msg: Message, timestamp: float | None = None) -> bytes:
     )
     stamp = msg.timestamp if timestamp is None else timestamp
     _check_fields(stamp, msg.arbitration_id, flags, msg.dlc, len(data))
-    return HEADER.pack(stamp, msg.arbitration_id, flags, msg.dlc) + data
+    return HEADER.pack(stamp, msg.arbitration_id, flags, msg.dlc, len(data)) + data
 
 
-def decode_frame(payload: bytes, channel: str | None = None) -> Message:
-    """Unpack one payload into a received :class:`can.Message`; raise MalformedFrameError."""
-    if len(payload) < HEADER.size:
-        raise MalformedFrameError(f"payload of {len(payload)} bytes is shorter than the header")
-    stamp, arbitration_id, flags, dlc = HEADER.unpack_from(payload)
-    data = payload[HEADER.size :]
-    _check_fields(stamp, arbitration_id, flags, dlc, len(data))
-    return Message(
+def decode_frames(payload: bytes, channel: str | None = None) -> list[Message]:
+    """Unpack a sample into its received :class:`can.Message` s; MalformedFrameError if any
+    part of it is not a frame (then none is taken: a sample is sent whole or not at all)."""
+    if not payload:
+        raise MalformedFrameError("empty payload")
+    frames = []
+    offset = 0
+    while offset < len(payload):
+        frame, offset = _decode_one(payload, offset, channel)
+        frames.append(frame)
+    return frames
+
+
+def _decode_one(payload: bytes, offset: int, channel: str | None) -> tuple[Message, int]:
+    if len(payload) - offset < HEADER.size:
+        raise MalformedFrameError(
+            f"{len(payload) - offset} bytes at offset {offset} are shorter than a header"
+        )
+    stamp, arbitration_id, flags, dlc, length = HEADER.unpack_from(payload, offset)
+    start = offset + HEADER.size
+    data = payload[start : start + length]
+    if len(data) != length:
+        raise MalformedFrameError(f"frame at offset {offset} is cut short")
+    _check_fields(stamp, arbitration_id, flags, dlc, length)
+    message = Message(
         timestamp=stamp,
         arbitration_id=arbitration_id,
         is_extended_id=bool(flags & FLAG_EXTENDED),
@@ -79,6 +99,7 @@ def decode_frame(payload: bytes, channel: str | None = None) -> Message:
         is_rx=True,
         check=False,
     )
+    return message, start + length
 
 
 def _check_fields(stamp: float, arbitration_id: int, flags: int, dlc: int, size: int) -> None:

@@ -49,3 +49,22 @@ def test_the_injector_drops_and_corrupts_the_share_it_is_told_to() -> None:
         except DecodeError:
             corrupt += 1
     assert corrupt == counts.corrupted  # one flipped bit: the CRC catches every one
+
+
+def test_frames_sent_together_are_dropped_and_corrupted_one_by_one() -> None:
+    inner = can.Bus(interface="virtual", channel="faults-together")
+    listener = can.Bus(interface="virtual", channel="faults-together")
+    injector = FaultInjector(inner, FaultSpec(drop=0.3, seed=9))
+    try:
+        frames = [can.Message(arbitration_id=0x110 + i, data=bytes(7)) for i in range(3)]
+        for _ in range(200):
+            injector.send_many(frames)
+        ids = []
+        while (message := listener.recv(0.0)) is not None:
+            ids.append(message.arbitration_id)
+    finally:
+        injector.shutdown()
+        listener.shutdown()
+    assert len(ids) == injector.counts.sent == 600 - injector.counts.dropped
+    assert 120 < injector.counts.dropped < 240
+    assert {ids.count(i) for i in (0x110, 0x111, 0x112)} != {200}  # not all or nothing

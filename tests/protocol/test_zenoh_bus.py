@@ -229,6 +229,19 @@ def test_two_buses_exchange_frames_both_ways_with_every_field(
     assert a.recv(0.2) is None and b.recv(0.2) is None
 
 
+def test_frames_sent_together_arrive_together_and_in_order(
+    buses: Callable[..., ZenohBus],
+) -> None:
+    a = buses("together")
+    b = buses("together")
+    wait_until(lambda: a.has_receivers, 5, "a receiver")
+    sent = frames_with_every_flag()
+    a.send_many(sent)
+    got = recv_all(b, len(sent), 5)
+    assert all(same_frame(x, y, timestamps=False) for x, y in zip(got, sent, strict=True))
+    assert len({m.timestamp for m in got}) == 1  # received as one
+
+
 def test_a_received_frame_carries_the_receive_time(buses: Callable[..., ZenohBus]) -> None:
     a = buses("stamp")
     b = buses("stamp")
@@ -268,7 +281,7 @@ def test_a_malformed_payload_on_the_key_is_counted_and_dropped(
         publisher = raw.declare_publisher(bus.key)
         wait_until(lambda: bool(publisher.matching_status.matching), 5, "the bus's subscriber")
         good = encode_frame(can.Message(timestamp=1.0, arbitration_id=7, is_extended_id=False))
-        malformed = (b"", b"junk", HEADER.pack(1.0, 1, 0x80, 0), HEADER.pack(1.0, 1, 0, 9))
+        malformed = (b"", b"junk", HEADER.pack(1.0, 1, 0x80, 0, 0), HEADER.pack(1.0, 1, 0, 9, 0))
         for payload in malformed:
             publisher.put(payload)
         publisher.put(good)

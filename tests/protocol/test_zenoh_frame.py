@@ -1,5 +1,6 @@
-"""The CAN-over-Zenoh frame format (``protocol.zenoh_can.frame``): every valid frame survives
-encode and decode, and what a receiver would drop is refused when sending."""
+"""The CAN-over-Zenoh frame format (``protocol.zenoh_can.frame``): every valid frame, and any
+run of them sent together, survives encode and decode; what a receiver would drop is refused
+when sending, and a sample with any malformed part is refused whole."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from protocol.zenoh_can.frame import (
     FLAG_FD,
     HEADER,
     MalformedFrameError,
-    decode_frame,
+    decode_frames,
     encode_frame,
 )
 
@@ -51,9 +52,17 @@ def valid_frames(draw: st.DrawFn) -> can.Message:
 def test_every_valid_frame_survives_encode_and_decode(msg: can.Message) -> None:
     payload = encode_frame(msg)
     assert len(payload) == HEADER.size + len(msg.data)
-    back = decode_frame(payload, "x")
+    (back,) = decode_frames(payload, "x")
     assert same_frame(back, msg)
     assert back.channel == "x" and back.is_rx
+
+
+@given(st.lists(valid_frames(), min_size=1, max_size=5))
+@settings(max_examples=200, deadline=None)
+def test_frames_sent_together_come_back_in_order(messages: list[can.Message]) -> None:
+    back = decode_frames(b"".join(encode_frame(msg) for msg in messages))
+    assert len(back) == len(messages)
+    assert all(same_frame(x, y) for x, y in zip(back, messages, strict=True))
 
 
 @pytest.mark.parametrize(
@@ -77,14 +86,17 @@ def test_encoding_refuses_what_a_receiver_would_drop(msg: can.Message, problem: 
     [
         b"",
         b"\x00" * (HEADER.size - 1),
-        HEADER.pack(1.0, 0x10, 0x40, 0),  # reserved flag bit
-        HEADER.pack(1.0, 0x10, 0x00, 9) + bytes(9),  # 9 bytes in a classic frame
-        HEADER.pack(1.0, 0x10, 0x00, 9),  # classic dlc 9
-        HEADER.pack(1.0, 0x10, FLAG_FD, 65),  # FD dlc 65
-        HEADER.pack(1.0, 0x800, 0x00, 0),  # 12-bit id without the extended flag
-        HEADER.pack(math.inf, 0x10, 0x00, 0),
+        HEADER.pack(1.0, 0x10, 0x40, 0, 0),  # reserved flag bit
+        HEADER.pack(1.0, 0x10, 0x00, 9, 9) + bytes(9),  # 9 bytes in a classic frame
+        HEADER.pack(1.0, 0x10, 0x00, 9, 0),  # classic dlc 9
+        HEADER.pack(1.0, 0x10, FLAG_FD, 65, 0),  # FD dlc 65
+        HEADER.pack(1.0, 0x800, 0x00, 0, 0),  # 12-bit id without the extended flag
+        HEADER.pack(math.inf, 0x10, 0x00, 0, 0),
+        HEADER.pack(1.0, 0x10, 0x00, 4, 4) + bytes(3),  # cut short
+        HEADER.pack(1.0, 0x10, 0x00, 0, 0) + b"\x00",  # a good frame, then a stray byte
+        HEADER.pack(1.0, 0x10, 0x00, 0, 0) + HEADER.pack(1.0, 0x10, 0x40, 0, 0),  # good, bad
     ],
 )
 def test_decoding_rejects_malformed_payloads(payload: bytes) -> None:
     with pytest.raises(MalformedFrameError):
-        decode_frame(payload)
+        decode_frames(payload)
