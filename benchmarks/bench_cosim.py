@@ -31,8 +31,8 @@ from types import ModuleType
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-from support import free_port  # noqa: E402
+sys.path.insert(0, str(ROOT))  # the tests' helpers: tests.support
+from tests.support import free_port  # noqa: E402
 
 from protocol import codec as current_codec  # noqa: E402
 

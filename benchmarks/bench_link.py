@@ -33,8 +33,8 @@ import numpy as np
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-from support import free_port  # noqa: E402
+sys.path.insert(0, str(ROOT))  # the tests' helpers: tests.support
+from tests.support import free_port  # noqa: E402
 
 from protocol.realtime import tune_process  # noqa: E402
 from protocol.zenoh_can import ZenohBus  # noqa: E402

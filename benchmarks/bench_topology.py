@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-from support import free_port  # noqa: E402
+sys.path.insert(0, str(ROOT))  # the tests' helpers: tests.support
+from tests.support import free_port  # noqa: E402
 
 TOPOLOGIES = ("holder", "peers+router", "clients+router")
 PERIOD = 0.002

@@ -209,6 +209,30 @@ class MessageCodec:
         body[0] = crc8(self.frame_id, memoryview(body)[1:])
         return bytes(body)
 
+    def quantise(self, record: Sequence[float]) -> Any:
+        """The record a receiver decodes when ``record`` is sent: ``decode(encode(record))``'s
+        values, bit for bit, without building the frame (the in-process simulation's wire)."""
+        if len(record) != len(self._plan):
+            raise EncodeError(f"{self.name}: expected {len(self._plan)} values {self.signal_names}")
+        values: list[float] = []
+        for index, (value, (scale, offset, low, high, _, integer), (minimum, maximum)) in enumerate(
+            zip(record, self._plan, self._limits, strict=True)
+        ):
+            if not minimum <= value <= maximum:  # also false for NaN
+                name = f"{self.name}.{self.signal_names[index]}"
+                raise EncodeError(f"{name}: {value!r} outside [{minimum:g}, {maximum:g}]")
+            raw = round((value - offset) / scale)
+            if integer:
+                if raw != value:
+                    raise EncodeError(
+                        f"{self.name}.{self.signal_names[index]}: {value!r} is not an integer"
+                    )
+                values.append(raw)
+                continue
+            raw = low if raw < low else high if raw > high else raw
+            values.append(raw * scale + offset)
+        return self._make(self.Record, values)
+
     def decode(self, data: bytes | bytearray) -> tuple[int, Any]:
         """``(counter, record)`` of a frame; :class:`DecodeError` if it is not valid."""
         if len(data) != self.length:

@@ -53,14 +53,14 @@ class Counter:
 def on_the_wire_command(rates: Joints) -> Joints:
     """The command the plant decodes for ``rates``."""
     record = COMMAND.Record(Enable=1, Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2])
-    _, command = COMMAND.decode(COMMAND.encode(record, 0))
+    command = COMMAND.quantise(record)
     return (command.Theta1Rate, command.Theta2Rate, command.D3Rate)
 
 
 def on_the_wire_state(position: Joints, velocity: Joints) -> tuple[Joints, Joints]:
     """The joint state the controller decodes for the plant's exact state."""
     decoded = [
-        codec.decode(codec.encode(codec.Record(CommandEcho=0, Position=p, Velocity=v), 0))[1]
+        codec.quantise(codec.Record(CommandEcho=0, Position=p, Velocity=v))
         for codec, p, v in zip(STATE, position, velocity, strict=True)
     ]
     return (

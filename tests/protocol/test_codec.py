@@ -179,6 +179,10 @@ def test_values_off_the_grid_round_to_the_nearest_step(
     for spec, value, back in zip(codec.signals, values, got, strict=True):
         assert back == quantised(spec, value)
         assert abs(back - value) <= spec.scale * (0.5 + 1e-6), spec.name
+    # The in-process simulation's wire: the same values without building the frame, bit for
+    # bit (the lockstep co-simulation's logs equal the simulation's only if this holds).
+    assert codec.quantise(values) == got
+    assert all(type(a) is type(b) for a, b in zip(codec.quantise(values), got, strict=True))
 
 
 # --- E2E header: CRC-8 SAE J1850 over the frame ID and bytes 1.. ----------------------------
