@@ -32,9 +32,8 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # the tests' helpers: tests.support
-from tests.support import free_port  # noqa: E402
-
 from protocol import codec as current_codec  # noqa: E402
+from tests.support import free_port  # noqa: E402
 
 TARGET_CODEC_US = 5.0
 TARGET_LOCKSTEP = 5.0

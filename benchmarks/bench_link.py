@@ -34,11 +34,10 @@ from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # the tests' helpers: tests.support
-from tests.support import free_port  # noqa: E402
-
 from protocol.realtime import tune_process  # noqa: E402
 from protocol.zenoh_can import ZenohBus  # noqa: E402
 from protocol.zenoh_can.config import router_reachable  # noqa: E402
+from tests.support import free_port  # noqa: E402
 
 RATE_HZ = 500.0
 TARGET_LATENESS_US = 200.0

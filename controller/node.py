@@ -359,7 +359,7 @@ class ControllerNode(Node):
         received meanwhile also ends the run (zero sent).
         """
         started = self.clock()
-        state = self._exchange(tick=0, command=None, give_up=started + startup_timeout)
+        state = self._exchange(0, None, give_up=started + startup_timeout)
         if state is None:
             return
         self.node_state = NodeState.RUNNING
@@ -371,41 +371,54 @@ class ControllerNode(Node):
                 return
             output = self._control(state)
             self.slot += 1
-            command = self._send_command(output.command, True)
-            give_up = self.clock() + LOCKSTEP_GIVE_UP
-            answer = self._exchange(self.tick, command, give_up=self.clock() + LOCKSTEP_RETRY)
-            while answer is None and self.running:
-                self.stats.lockstep_retries += 1
-                if self.clock() >= give_up:
-                    self.enter_fault(ControllerFault.STALE_STATE)
-                    self.send_zero()
-                    self.send_status_if_due(self.clock())
-                    return
-                command = self._send_command(output.command, True)  # same values, new counter
-                answer = self._exchange(self.tick, command, give_up=self.clock() + LOCKSTEP_RETRY)
+            answer = self._exchange(self.tick, output.command, self.clock() + LOCKSTEP_GIVE_UP)
             if answer is None:
+                if self.running and self.node_state is NodeState.RUNNING:
+                    self.enter_fault(ControllerFault.STALE_STATE)
+                self.send_zero()
+                self.send_status_if_due(self.clock())
                 return
             state = answer
             self.stats.ticks += 1
 
-    def _exchange(self, tick: int, command: int | None, give_up: float) -> JointState | None:
-        """Send StepSync(tick) naming ``command`` and wait for the joint state answering it.
+    def _exchange(self, tick: int, rates: Joints | None, give_up: float) -> JointState | None:
+        """Send the command ``rates`` and a StepSync(tick) naming it, together, and wait for
+        the joint state answering it; every LOCKSTEP_RETRY without one, send both again (the
+        same values under new counters), until ``give_up``. ``rates`` None: StepSync alone,
+        which the plant answers without stepping (the start).
 
         Only an answer echoing the latest command is taken: the plant steps only under a
         command it received since its last step, and echoes the last command it received.
         """
         self.state = None
         while self.running:
-            self.send(STEP, STEP.Record(CommandCounter=command or 0, Tick=tick))
+            frames = []
+            command = 0
+            if rates is not None:
+                command = self.next_counter(COMMAND)
+                record = COMMAND.Record(
+                    Enable=1, Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2]
+                )
+                frames.append((COMMAND, record, command))
+            step = STEP.Record(CommandCounter=command, Tick=tick)
+            frames.append((STEP, step, self.next_counter(STEP)))
+            try:
+                self.send_together(frames)
+            except EncodeError as error:
+                self.log.error("%s", error)
+                self.enter_fault(ControllerFault.ENCODE)
+                return None
             self.send_status_if_due(self.clock())
             resend = min(give_up, self.clock() + LOCKSTEP_RETRY)
             while self.clock() < resend:
                 self.drain(timeout=max(0.0, resend - self.clock()))
                 state = self.state
-                if state is not None and (command is None or state.echo == command):
+                if state is not None and (rates is None or state.echo == command):
                     return state
             if self.clock() >= give_up:
                 return None
+            if rates is not None:
+                self.stats.lockstep_retries += 1
         return None
 
     # --- results ---------------------------------------------------------------------------------
@@ -451,15 +464,19 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="give up after this many seconds",
     )
+    add_comms_timeout_argument(parser, default=COMMS_TIMEOUT)
+    return parser
+
+
+def add_comms_timeout_argument(parser: argparse.ArgumentParser, default: float | None) -> None:
     parser.add_argument(
         "--comms-timeout",
         type=number(0.0, 10.0, low_open=True),
-        default=COMMS_TIMEOUT,
+        default=default,
         metavar="S",
-        help="s without a fresh joint state before a hold becomes a latched fault "
-        "(default %(default)g; must exceed 3 ticks)",
+        help=f"s without a fresh joint state before a hold becomes a latched fault "
+        f"(default {COMMS_TIMEOUT:g}; must exceed 3 ticks)",
     )
-    return parser
 
 
 def make(setup: NodeSetup) -> ControllerNode:

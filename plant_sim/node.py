@@ -196,11 +196,17 @@ class PlantNode(Node):
 
     def _send_state(self) -> None:
         """JointState1-3 with one alive counter: together they are one joint state."""
-        frames = [
-            (codec, codec.Record(CommandEcho=self.command_echo, Position=p, Velocity=v))
-            for codec, p, v in zip(STATE, self.model.position, self.model.velocity, strict=True)
-        ]
-        self.send_together(frames, self._state_counter.next())
+        counter = self._state_counter.next()
+        self.send_together(
+            [
+                (
+                    codec,
+                    codec.Record(CommandEcho=self.command_echo, Position=p, Velocity=v),
+                    counter,
+                )
+                for codec, p, v in zip(STATE, self.model.position, self.model.velocity, strict=True)
+            ]
+        )
         self.stats.states_sent += 1
 
     def status_record(self) -> Any:

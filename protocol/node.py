@@ -131,19 +131,24 @@ class Node:
 
     # --- frames out ---------------------------------------------------------------------
 
+    def next_counter(self, codec: MessageCodec) -> int:
+        """The next alive counter of ``codec``'s frame ID (each ID counts on its own)."""
+        return self._counters[codec.frame_id].next()
+
     def send(self, codec: MessageCodec, record: Any) -> int:
         """Encode ``record`` with the next alive counter of its ID and send it; the counter.
 
         :class:`EncodeError` is the caller's to handle (it means a value is out of range).
         """
-        counter = self._counters[codec.frame_id].next()
-        self._transmit([self._frame(codec, record, counter)])
+        counter = self.next_counter(codec)
+        self.send_together([(codec, record, counter)])
         return counter
 
-    def send_together(self, frames: Sequence[tuple[MessageCodec, Any]], counter: int) -> None:
-        """Frames that are one unit (JointState1-3) with one shared alive counter, sent
-        together where the transport can (:func:`protocol.bus.send_frames`)."""
-        self._transmit([self._frame(codec, record, counter) for codec, record in frames])
+    def send_together(self, frames: Sequence[tuple[MessageCodec, Any, int]]) -> None:
+        """Frames that belong together (a joint state, a lockstep command and its StepSync),
+        each ``(codec, record, alive counter)``, sent as one unit where the transport can
+        (:func:`protocol.bus.send_frames`). Nothing is sent if one does not encode."""
+        self._transmit([self._frame(codec, record, counter) for codec, record, counter in frames])
 
     @staticmethod
     def _frame(codec: MessageCodec, record: Any, counter: int) -> can.Message:
@@ -215,13 +220,21 @@ def add_node_arguments(parser: argparse.ArgumentParser, clock_help: str) -> None
         default=ClockMode.REALTIME.value,
         help=clock_help,
     )
+    parser.add_argument("--out", type=Path, help="folder for the node's result JSON (and log)")
+    add_timing_arguments(parser)
+    add_bus_arguments(parser)
+    add_fault_arguments(parser)
+    add_verbosity(parser)
+
+
+def add_timing_arguments(parser: argparse.ArgumentParser) -> None:
+    """The control rate and the process timing flags (the nodes', and the launcher's for both)."""
     parser.add_argument(
         "--rate",
         type=number(MIN_RATE_HZ, MAX_RATE_HZ),
         metavar="HZ",
         help=f"control rate in Hz, {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g} (default: the scenario's)",
     )
-    parser.add_argument("--out", type=Path, help="folder for the node's result JSON (and log)")
     parser.add_argument(
         "--realtime-priority",
         type=number(1, 99, integer=True),
@@ -234,9 +247,6 @@ def add_node_arguments(parser: argparse.ArgumentParser, clock_help: str) -> None
         help="do not ask the kernel for precise wake-ups (1 ns timer slack, short slice); "
         "for measuring what they bring",
     )
-    add_bus_arguments(parser)
-    add_fault_arguments(parser)
-    add_verbosity(parser)
 
 
 def node_main(

@@ -19,12 +19,12 @@ from types import FrameType
 
 from tqdm import tqdm
 
+from controller.node import add_comms_timeout_argument
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, parse_options, resolve_transport
 from protocol.cli import add_verbosity, configure_logging, number
-from protocol.config import MAX_RATE_HZ, MIN_RATE_HZ
 from protocol.errors import ScaraError
-from protocol.node import ClockMode
+from protocol.node import ClockMode, add_timing_arguments
 from protocol.scenario import Mode
 from protocol.zenoh_can.config import DEFAULT_HOST, DEFAULT_PORT, router_reachable
 from sim.report import format_report, read_run
@@ -51,12 +51,6 @@ def build_parser() -> argparse.ArgumentParser:
         default=ClockMode.REALTIME.value,
         help="real time (each process on its own clock) or lockstep (deterministic)",
     )
-    parser.add_argument(
-        "--rate",
-        type=number(MIN_RATE_HZ, MAX_RATE_HZ),
-        metavar="HZ",
-        help=f"control rate in Hz, {MIN_RATE_HZ:g}-{MAX_RATE_HZ:g} (default: the scenario's)",
-    )
     parser.add_argument("--out", type=Path, default=Path("out/run"), help="results folder")
     parser.add_argument(
         "--controller-first", action="store_true", help="start the controller before the plant"
@@ -73,23 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="give up after this many seconds (default %(default)g)",
     )
-    parser.add_argument(
-        "--comms-timeout",
-        type=number(0.0, 10.0, low_open=True),
-        metavar="S",
-        help="the controller's comms-loss timeout (default 0.1 s)",
-    )
-    parser.add_argument(
-        "--realtime-priority",
-        type=number(1, 99, integer=True),
-        metavar="N",
-        help="run both nodes under SCHED_FIFO at priority N (root or CAP_SYS_NICE)",
-    )
-    parser.add_argument(
-        "--plain-scheduling",
-        action="store_true",
-        help="nodes do not ask for precise wake-ups (to measure what that brings)",
-    )
+    add_comms_timeout_argument(parser, default=None)
+    add_timing_arguments(parser)
     add_bus_arguments(parser)
     add_verbosity(parser)
     return parser

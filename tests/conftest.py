@@ -7,16 +7,19 @@
   not exist.
 - ``processes``: children started as ``python -m MODULE ...``, killed at the end.
 - ``observer_on``: a bus of the test's own that records every frame, closed at the end.
+- ``virtual_pair``: a node's bus and the test's bus on a fresh python-can ``virtual`` channel.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import can
 import pytest
 from hypothesis import settings
 from support import Observer, Processes, Transport, free_port, wait_until
@@ -110,3 +113,17 @@ def observer_on() -> Iterator[Callable[[Any], Observer]]:
     finally:
         for observer in opened:
             observer.close()
+
+
+_channels = itertools.count()
+
+
+@pytest.fixture
+def virtual_pair() -> Iterator[tuple[can.BusABC, can.BusABC]]:
+    """A node's bus and the test's bus on a fresh in-process ``virtual`` channel."""
+    channel = f"pair-{next(_channels)}"
+    node_bus = can.Bus(interface="virtual", channel=channel)
+    peer = can.Bus(interface="virtual", channel=channel)
+    yield node_bus, peer
+    node_bus.shutdown()
+    peer.shutdown()

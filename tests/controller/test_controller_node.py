@@ -4,11 +4,9 @@ checks and e-stop."""
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Iterator
-
 import can
 import pytest
+from support import FakeClock, frame
 
 from controller.node import STALE_TICKS, ControllerNode
 from protocol.codec import WIRE
@@ -19,30 +17,6 @@ from protocol.scenario import load_scenario
 
 SCENARIO = load_scenario("reference")
 ACCEL = SCENARIO.robot.accel_limits
-_channels = itertools.count()
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
-@pytest.fixture
-def buses() -> Iterator[tuple[can.BusABC, can.BusABC]]:
-    """The node's bus and the test's bus, on a fresh virtual channel."""
-    channel = f"controller-{next(_channels)}"
-    node_bus = can.Bus(interface="virtual", channel=channel)
-    peer = can.Bus(interface="virtual", channel=channel)
-    yield node_bus, peer
-    node_bus.shutdown()
-    peer.shutdown()
-
-
-def frame(frame_id: int, data: bytes) -> can.Message:
-    return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
 
 
 def send_state(peer: can.BusABC, counter: int, echo: int = 0) -> None:
@@ -79,9 +53,9 @@ def start_running(
 
 
 def test_controller_holds_after_three_ticks_without_state_and_resumes_from_rest(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     clock = FakeClock()
     controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
     controller.realtime_tick(clock.now)
@@ -115,9 +89,9 @@ def test_controller_holds_after_three_ticks_without_state_and_resumes_from_rest(
 
 
 def test_a_hold_longer_than_the_comms_timeout_latches_a_fault(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     clock = FakeClock()
     controller = ControllerNode(
         node_bus, SCENARIO, ClockMode.REALTIME, comms_timeout=0.05, clock=clock
@@ -154,9 +128,9 @@ def test_comms_timeout_must_exceed_the_hold_ticks() -> None:
 
 
 def test_controller_ignores_corrupt_and_mixed_state_frames(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=FakeClock())
     position = SCENARIO.initial_joints()
     record = STATE[0].Record(CommandEcho=0, Position=position[0], Velocity=0.0)
@@ -175,9 +149,9 @@ def test_controller_ignores_corrupt_and_mixed_state_frames(
 
 
 def test_controller_goes_to_estop_on_an_emergency_stop(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     clock = FakeClock()
     controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
     send_state(peer, 0)
@@ -190,9 +164,9 @@ def test_controller_goes_to_estop_on_an_emergency_stop(
 
 
 def test_the_run_clock_counts_holds_the_plan_clock_does_not(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     clock = FakeClock()
     controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
     counter = start_running(peer, controller, clock, ticks=10)

@@ -3,11 +3,8 @@ injected clock (canopen-style): answers, E2E checks, the brake, lockstep steppin
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Iterator
-
 import can
-import pytest
+from support import FakeClock, frame
 
 from plant_sim.node import COMMAND_TIMEOUT, PlantNode
 from protocol.codec import WIRE
@@ -16,30 +13,6 @@ from protocol.node import ClockMode
 from protocol.scenario import load_scenario
 
 SCENARIO = load_scenario("reference")
-_channels = itertools.count()
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
-@pytest.fixture
-def buses() -> Iterator[tuple[can.BusABC, can.BusABC]]:
-    """The node's bus and the test's bus, on a fresh virtual channel."""
-    channel = f"plant-{next(_channels)}"
-    node_bus = can.Bus(interface="virtual", channel=channel)
-    peer = can.Bus(interface="virtual", channel=channel)
-    yield node_bus, peer
-    node_bus.shutdown()
-    peer.shutdown()
-
-
-def frame(frame_id: int, data: bytes) -> can.Message:
-    return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
 
 
 def command(rate1: float, counter: int, enable: int = 1, rate2: float = 0.0) -> can.Message:
@@ -67,9 +40,9 @@ def deliver(node_bus: can.BusABC, node: PlantNode) -> None:
 
 
 def test_plant_answers_a_command_with_its_counter_and_brakes_when_commands_stop(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     clock = FakeClock()
     plant = PlantNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
     peer.send(command(0.5, 7, rate2=-0.25))
@@ -91,11 +64,11 @@ def test_plant_answers_a_command_with_its_counter_and_brakes_when_commands_stop(
 
 
 def test_a_plant_that_was_not_scheduled_catches_up_with_its_brake(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
     """After a stall (SIGSTOP) the plant integrates the last command only until its drives'
     20 ms watchdog, then the brake: it does not drive on blindly for the whole stall."""
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     clock = FakeClock()
     plant = PlantNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
     peer.send(command(2.0, 1))
@@ -112,9 +85,9 @@ def test_a_plant_that_was_not_scheduled_catches_up_with_its_brake(
 
 
 def test_plant_never_acts_on_a_corrupt_or_repeated_command(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     plant = PlantNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=FakeClock())
     peer.send(command(0.5, 1))
     corrupt = bytearray(command(5.0, 2).data)
@@ -129,9 +102,9 @@ def test_plant_never_acts_on_a_corrupt_or_repeated_command(
 
 
 def test_plant_steps_once_per_step_frame_and_only_under_the_named_command(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     plant = PlantNode(node_bus, SCENARIO, ClockMode.LOCKSTEP, clock=FakeClock())
     steps = Counter()
     peer.send(command(1.0, 4))
@@ -152,9 +125,9 @@ def test_plant_steps_once_per_step_frame_and_only_under_the_named_command(
 
 
 def test_plant_does_not_step_under_a_command_it_never_received(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     plant = PlantNode(node_bus, SCENARIO, ClockMode.LOCKSTEP, clock=FakeClock())
     # The controller's first command (counter 0) was lost; its StepSync names counter 0,
     # which is also what the plant echoes before any command: it must not step.
@@ -167,8 +140,10 @@ def test_plant_does_not_step_under_a_command_it_never_received(
     assert plant.tick == 1 and plant.stats.steps == 1
 
 
-def test_plant_latches_emergency_stop_until_a_reset(buses: tuple[can.BusABC, can.BusABC]) -> None:
-    node_bus, peer = buses
+def test_plant_latches_emergency_stop_until_a_reset(
+    virtual_pair: tuple[can.BusABC, can.BusABC],
+) -> None:
+    node_bus, peer = virtual_pair
     plant = PlantNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=FakeClock())
     peer.send(frame(STOP.frame_id, STOP.encode(STOP.Record(Source=3), 0)))
     peer.send(command(1.0, 0))
@@ -183,9 +158,9 @@ def test_plant_latches_emergency_stop_until_a_reset(buses: tuple[can.BusABC, can
 
 
 def test_status_frame_goes_out_on_the_dbcs_cycle_time(
-    buses: tuple[can.BusABC, can.BusABC],
+    virtual_pair: tuple[can.BusABC, can.BusABC],
 ) -> None:
-    node_bus, peer = buses
+    node_bus, peer = virtual_pair
     clock = FakeClock()
     plant = PlantNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
     sent = 0
