@@ -105,7 +105,10 @@ class ZenohBus(can.BusABC):
         self._close_lock = threading.Lock()
         self._sent_any = False
         self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
-        self._flush_key = FLUSH_PREFIX + self.key[len(KEY_PREFIX) :]
+        # The barrier's queryable key ends in a verbatim chunk, which no other channel's can
+        # match, so that the query may end in /**: a query for the exact key waits its whole
+        # timeout for a queryable that has already left (eclipse-zenoh/zenoh#2454).
+        self._flush_key = FLUSH_PREFIX + self.key[len(KEY_PREFIX) :] + "/@end"
         self.zenoh_settings = client_config(self.host, self.port)
         self._session = self._open_session(float(open_timeout))
         try:
@@ -266,23 +269,34 @@ class ZenohBus(can.BusABC):
         Returns the number of buses that answered within ``timeout``.
         """
         answered = 0
-        with contextlib.suppress(zenoh.ZError):
+        deadline = time.monotonic() + timeout
+        try:
             replies = self._session.get(
-                self._flush_key,
+                self._flush_key + "/**",
                 target=zenoh.QueryTarget.ALL,
                 consolidation=zenoh.ConsolidationMode.NONE,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 timeout=timeout,
                 allowed_destination=zenoh.Locality.REMOTE,
             )
-            for reply in replies:  # ends when all have answered or the timeout expires
+        except zenoh.ZError:
+            return 0
+        while True:  # bounded by our own clock too: a query has been seen to outlive its timeout
+            try:
+                reply = replies.try_recv()
+            except zenoh.ZError:  # complete: every bus answered, or Zenoh's timeout
+                return answered
+            if reply is not None:
                 answered += reply.ok is not None
-        return answered
+            elif time.monotonic() >= deadline:
+                return answered
+            else:
+                time.sleep(0.001)
 
     def _on_flush_query(self, query: zenoh.Query) -> None:
         """Zenoh thread: every frame received before this query is already queued."""
         with contextlib.suppress(Exception):
-            query.reply(query.key_expr, b"")
+            query.reply(self._flush_key, b"")
 
     @staticmethod
     def _detect_available_configs() -> list[AutoDetectedConfig]:
