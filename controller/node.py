@@ -55,6 +55,7 @@ from protocol.messages import (
     NodeId,
     NodeState,
     PlantFault,
+    command_record,
 )
 from protocol.node import ClockMode, Node, NodeSetup, add_node_arguments, node_main
 from protocol.scenario import Mode, Scenario
@@ -222,16 +223,12 @@ class ControllerNode(Node):
     # --- frames out --------------------------------------------------------------------------
 
     def _send_command(self, rates: Joints, enable: bool) -> int:
-        record = COMMAND.Record(
-            Enable=int(enable), Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2]
-        )
         try:
-            return self.send(COMMAND, record)
+            return self.send(COMMAND, command_record(rates, enable))
         except EncodeError as error:
             self.log.error("%s", error)
             self.enter_fault(ControllerFault.ENCODE)
-            zero = COMMAND.Record(Enable=0, Theta1Rate=0.0, Theta2Rate=0.0, D3Rate=0.0)
-            return self.send(COMMAND, zero)
+            return self.send(COMMAND, command_record(ZERO, False))
 
     def send_zero(self) -> None:
         """Leave the plant braking: the last word of a controller that stops or holds."""
@@ -396,10 +393,7 @@ class ControllerNode(Node):
             command = 0
             if rates is not None:
                 command = self.next_counter(COMMAND)
-                record = COMMAND.Record(
-                    Enable=1, Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2]
-                )
-                frames.append((COMMAND, record, command))
+                frames.append((COMMAND, command_record(rates), command))
             step = STEP.Record(CommandCounter=command, Tick=tick)
             frames.append((STEP, step, self.next_counter(STEP)))
             try:

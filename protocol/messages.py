@@ -50,10 +50,16 @@ class Counter:
         return self.value
 
 
+def command_record(rates: Joints, enable: bool = True) -> Any:
+    """The JointVelocityCommand record of joint ``rates`` (rad/s, rad/s, m/s)."""
+    return COMMAND.Record(
+        Enable=int(enable), Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2]
+    )
+
+
 def on_the_wire_command(rates: Joints) -> Joints:
     """The command the plant decodes for ``rates``."""
-    record = COMMAND.Record(Enable=1, Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2])
-    command = COMMAND.quantise(record)
+    command = COMMAND.quantise(command_record(rates))
     return (command.Theta1Rate, command.Theta2Rate, command.D3Rate)
 
 
