@@ -85,6 +85,19 @@ def run_result(out: Path, *processes: Process) -> dict[str, Any]:
     return result
 
 
+def finish_clean(
+    processes: Processes, controller: Process, plant: Process, out: Path
+) -> dict[str, Any]:
+    """Wait for the controller to end its run, stop the plant, and check the run was clean."""
+    code = controller.wait(60)
+    assert plant.interrupt() == 0, plant.output()
+    result = run_result(out, controller, plant)
+    outputs = processes.outputs()
+    assert code == 0, f"{brief(result)}\n{outputs}"
+    assert_run_is_clean(result, outputs)
+    return result
+
+
 def node_args(transport: Transport, clock: str, out: Path, *extra: str) -> list[str]:
     return [SCENARIO, "--clock", clock, *transport.cli(), "--out", str(out), *extra]
 
@@ -225,12 +238,7 @@ def test_realtime_controller_started_before_the_plant_still_completes(
     time.sleep(1.5)
     assert controller.poll() is None, controller.output()
     plant = processes.start("plant_sim.node", *node_args(transport, "realtime", out), name="plant")
-    code = controller.wait(60)
-    assert plant.interrupt() == 0, plant.output()
-    result = run_result(out, controller, plant)
-    outputs = processes.outputs()
-    assert code == 0, f"{brief(result)}\n{outputs}"
-    assert_run_is_clean(result, outputs)
+    result = finish_clean(processes, controller, plant, out)
     loop = result["loop"]
     assert loop["loops"] - loop["ticks"] > 100, loop  # it did wait for the plant
 
@@ -388,12 +396,7 @@ def test_plant_stopped_for_50_ms_the_controller_holds_resumes_and_completes(
     assert all(command == ZERO for command in settled), settled
     resumed = commands_between(observer.frames(), continued, time.time())
     assert any(enable == 1 for enable, _ in resumed), "control never resumed"
-    code = controller.wait(60)
-    assert plant.interrupt() == 0, plant.output()
-    result = run_result(out, controller, plant)
-    outputs = processes.outputs()
-    assert code == 0, f"{brief(result)}\n{outputs}"
-    assert_run_is_clean(result, outputs)
+    result = finish_clean(processes, controller, plant, out)
     assert result["loop"]["holds"] >= 1, result["loop"]
 
 
@@ -480,8 +483,4 @@ def test_controller_resumes_after_plant_killed_restarted_and_reset(
         lambda m: m.timestamp > reset and controller_in(NodeState.RUNNING)(m), 5.0
     )
     assert running is not None, f"no RUNNING status after the reset\n{processes.outputs()}"
-    code = controller.wait(60)
-    assert new_plant.interrupt() == 0, new_plant.output()
-    result = run_result(out, controller, new_plant)
-    assert code == 0, f"{brief(result)}\n{processes.outputs()}"
-    assert_run_is_clean(result, processes.outputs())
+    finish_clean(processes, controller, new_plant, out)
