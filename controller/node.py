@@ -27,6 +27,7 @@ EmergencyStop latches e-stop until a reset.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -36,6 +37,7 @@ from typing import Any
 import can
 import numpy as np
 
+from controller.behaviours import TURN_LEFT, TURN_RIGHT
 from controller.control_law import ControlLaw, ControlOutput
 from controller.planner import load_planned
 from controller.runlog import COLUMNS, RunLog, row_of
@@ -45,20 +47,25 @@ from protocol.errors import ConfigError, EncodeError
 from protocol.messages import (
     COMMAND,
     CONTROLLER_STATUS,
+    COORDINATION,
     PLANT_STATUS,
+    RUN_STATUS,
     STATE,
     STATE_IDS,
     STEP,
+    Behaviour,
     ControllerFault,
     ControllerFlag,
     Joints,
+    JointStateParts,
     NodeId,
     NodeState,
     PlantFault,
+    Side,
     command_record,
 )
 from protocol.node import ClockMode, Node, NodeSetup, add_node_arguments, node_main
-from protocol.scenario import Mode, Scenario
+from protocol.scenario import WAYPOINT_TOLERANCE, Mode, Scenario, scenario_document
 
 STALE_TICKS = 3
 """Ticks without a new valid joint state before the controller holds."""
@@ -71,6 +78,9 @@ LOCKSTEP_RETRY = 0.005
 LOCKSTEP_GIVE_UP = 1.0
 """s without any answer in lockstep before the controller faults (the plant is gone)."""
 ZERO: Joints = (0.0, 0.0, 0.0)
+_D_MAX = 0.255
+"""m: d_L and d_R saturate here on the wire (sensing range 0.2 m by default)."""
+_SIDES = {0: Side.NONE, TURN_LEFT: Side.LEFT, TURN_RIGHT: Side.RIGHT}
 PREALLOCATED_ROWS = 65536
 """Log rows reserved up front (a longer run's log grows)."""
 
@@ -133,6 +143,8 @@ class ControllerNode(Node):
     status = CONTROLLER_STATUS
     listens = (*STATE, PLANT_STATUS)
     Fault = ControllerFault
+    starts_on_first_state = True
+    """A run of the scenario starts with the first joint state (the service waits for run)."""
 
     def __init__(
         self,
@@ -158,30 +170,42 @@ class ControllerNode(Node):
         self.sleep = sleep
         self.wall_clock = wall_clock
         self._born = clock()
-        self.ticks_to_run = round(scenario.duration / self.period) + 1
-        self.law = ControlLaw.for_scenario(scenario)
         self.stats = LoopStats()
+        self._late_max = 0.0
         self.states_received = 0
         self._seen = 0
         self._quiet_ticks = STALE_TICKS
         self._last_fresh = -float("inf")
         self._hold_started = 0.0
         self._awaiting: dict[int, float] = {}  # command counter -> wall time it was sent
-        self._parts: dict[int, list[tuple[float, float, int] | None]] = {}
+        self._parts = JointStateParts()
         self.state: JointState | None = None
+        self.ticks_to_run = self.tick = self.slot = 0  # no run prepared yet
+        self._next_waypoint = self._approach = 0
+        self._last_output: ControlOutput | None = None
         self.on_reset()
 
     def on_reset(self) -> None:
         """Start the scenario again from the next joint state that arrives."""
-        self.law.reset()
-        self.log_rows = RunLog(min(self.ticks_to_run, PREALLOCATED_ROWS))
-        self.tick = 0  # control steps taken: the plan's clock
-        self.slot = 0  # ticks since the run started, holds and missed slots included
+        self.prepare(self.scenario)
         self.state = None
         self._parts.clear()
         self.monitor.forget()
         self.fault = ControllerFault(0)
         self.node_state = NodeState.READY
+
+    def prepare(self, scenario: Scenario, approach: int = 0) -> None:
+        """Make ``scenario`` the one to run, from its start; ``approach`` is how many of its
+        first waypoints were added to reach the task (not the task's own)."""
+        self.scenario = scenario
+        self.ticks_to_run = round(scenario.duration / self.period) + 1
+        self.law = ControlLaw.for_scenario(scenario)
+        self.log_rows = RunLog(min(self.ticks_to_run, PREALLOCATED_ROWS))
+        self.tick = 0  # control steps taken: the plan's clock
+        self.slot = 0  # ticks since the run started, holds and missed slots included
+        self._next_waypoint = 0
+        self._approach = approach
+        self._last_output = None
 
     # --- frames in -------------------------------------------------------------------------
 
@@ -197,28 +221,16 @@ class ControllerNode(Node):
             self.enter_fault(ControllerFault.PLANT_FAULT)
 
     def _on_state_part(self, joint: int, counter: int, record: Any, received: float) -> None:
-        """Collect JointState1-3; the three frames of one plant step share one counter."""
-        parts = self._parts.setdefault(counter, [None, None, None])
-        parts[joint] = (record.Position, record.Velocity, record.CommandEcho)
-        if all(part is not None for part in parts):
-            complete = [part for part in parts if part is not None]
-            echoes = {part[2] for part in complete}
-            self._parts.clear()
-            if len(echoes) != 1:
-                return
-            self.states_received += 1
-            self.state = JointState(
-                (complete[0][0], complete[1][0], complete[2][0]),
-                (complete[0][1], complete[1][1], complete[2][1]),
-                echoes.pop(),
-                received,
-            )
-            sent = self._awaiting.pop(self.state.echo, None)
-            if sent is not None:
-                self.stats.answer_delay.append(received - sent)
-        elif len(self._parts) > 4:  # incomplete sets of lost frames: keep only recent ones
-            for old in list(self._parts)[:-2]:
-                del self._parts[old]
+        """Collect JointState1-3; a complete, consistent set is the newest joint state."""
+        complete = self._parts.add(joint, counter, record)
+        if complete is None:
+            return
+        position, velocity, echo = complete
+        self.states_received += 1
+        self.state = JointState(position, velocity, echo, received)
+        sent = self._awaiting.pop(echo, None)
+        if sent is not None:
+            self.stats.answer_delay.append(received - sent)
 
     # --- frames out --------------------------------------------------------------------------
 
@@ -234,19 +246,45 @@ class ControllerNode(Node):
         """Leave the plant braking: the last word of a controller that stops or holds."""
         self._send_command(ZERO, False)
 
-    def status_record(self) -> Any:
+    def statuses(self) -> list[tuple[MessageCodec, Any]]:
+        """ControllerStatus, and for monitors the coordination and the run's progress."""
         flags = ControllerFlag(0)
         if self.clock_mode is ClockMode.LOCKSTEP:
             flags |= ControllerFlag.LOCKSTEP
         if self.scenario.mode is Mode.FUZZY:
             flags |= ControllerFlag.FUZZY
-        return CONTROLLER_STATUS.Record(
+        status = CONTROLLER_STATUS.Record(
             State=self.node_state,
             FaultCode=int(self.fault),
             Flags=int(flags),
             BadFrames=min(self.monitor.counts.bad, 0xFFFF),
             Extra=min(self.stats.deadline_misses, 0xFFFF),
         )
+        output = self._last_output
+        moving = output is not None and self.node_state is NodeState.RUNNING
+        if output is None:
+            coordination = COORDINATION.Record(
+                Side=Side.NONE, KT=0.0, KC=0.0, Beta=0.0, DLeft=0.0, DRight=0.0
+            )
+        else:
+            measurement = output.measurement
+            coordination = COORDINATION.Record(
+                Side=_SIDES[self.law.side],
+                KT=output.k_t,
+                KC=output.k_c,
+                Beta=measurement.beta,
+                DLeft=min(measurement.d_left, _D_MAX),
+                DRight=min(measurement.d_right, _D_MAX),
+            )
+        run = RUN_STATUS.Record(
+            Behaviour=_behaviour(output) if moving and output is not None else Behaviour.NONE,
+            Holds=min(self.stats.holds, 0xFFFF),
+            Waypoint=min(self.waypoints_reached, 0xFF),
+            Progress=min(100, round(100 * self.tick / max(self.ticks_to_run, 1))),
+            LatenessMax=min(round(self._late_max * 1e6), 0xFFFF),
+        )
+        self._late_max = 0.0
+        return [(CONTROLLER_STATUS, status), (COORDINATION, coordination), (RUN_STATUS, run)]
 
     # --- one control step ----------------------------------------------------------------------
 
@@ -257,11 +295,35 @@ class ControllerNode(Node):
         clock = start + self.slot * self.period
         self.log_rows.append(row_of(t, state.position, state.velocity, output, clock))
         self.tick += 1
+        self._last_output = output
+        waypoints = self.scenario.waypoints
+        if self._next_waypoint < len(waypoints):
+            target = waypoints[self._next_waypoint]
+            x, y, z = output.tcp
+            if math.dist((x, y, z), (target.x, target.y, target.z)) <= WAYPOINT_TOLERANCE:
+                self._next_waypoint += 1
         return output
+
+    @property
+    def waypoints_reached(self) -> int:
+        """Waypoints of the task the TCP came within 2 mm of, in order (an approach segment's
+        start, the arm's position when the run began, is not one of the task's)."""
+        return max(0, self._next_waypoint - self._approach)
 
     @property
     def finished(self) -> bool:
         return self.tick >= self.ticks_to_run
+
+    @property
+    def done(self) -> bool:
+        """The loop has nothing more to do: the scenario ran to its end."""
+        return self.finished
+
+    def serve(self, now: float) -> None:
+        """Work of a tick beside control, after the frames were taken (the service's)."""
+
+    def on_run_complete(self) -> None:
+        """The run reached its end (the service goes back to idle)."""
 
     # --- real time -----------------------------------------------------------------------------
 
@@ -273,7 +335,7 @@ class ControllerNode(Node):
         """
         start = self.clock()
         deadline = start
-        while self.running and not self.finished:
+        while self.running and not self.done:
             if max_wall_time is not None and self.clock() - start > max_wall_time:
                 self.log.warning("gave up after %g s (--max-wall-time)", max_wall_time)
                 break
@@ -283,6 +345,7 @@ class ControllerNode(Node):
             now = self.clock()
             lateness = now - deadline
             self.stats.lateness.append(lateness)
+            self._late_max = max(self._late_max, lateness)
             if lateness > LATE_TOLERANCE * self.period:
                 self.stats.deadline_misses += 1
             self.realtime_tick(now)
@@ -300,6 +363,7 @@ class ControllerNode(Node):
         """One real-time tick: take what arrived, check freshness, command, report."""
         self.stats.loops += 1
         self.drain()
+        self.serve(now)
         fresh = self.states_received != self._seen
         self._seen = self.states_received
         if fresh:
@@ -314,6 +378,8 @@ class ControllerNode(Node):
             counter = self._send_command(output.command, True)
             self._awaiting[counter] = self.wall_clock()
             self.stats.ticks += 1
+            if self.finished:
+                self.on_run_complete()
         else:
             self.send_zero()
         if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
@@ -322,7 +388,7 @@ class ControllerNode(Node):
 
     def _update_link_state(self, now: float, fresh: bool) -> None:
         """READY -> RUNNING on the first state; RUNNING <-> HOLD; HOLD -> FAULT on timeout."""
-        if self.node_state is NodeState.READY and fresh:
+        if self.node_state is NodeState.READY and fresh and self.starts_on_first_state:
             self.node_state = NodeState.RUNNING
         elif self.node_state is NodeState.RUNNING and self._quiet_ticks >= STALE_TICKS:
             self.node_state = NodeState.HOLD
@@ -423,6 +489,7 @@ class ControllerNode(Node):
     def result(self) -> dict[str, Any]:
         return super().result() | {
             "scenario": self.scenario.name,
+            "scenario_document": scenario_document(self.scenario),
             "mode": self.scenario.mode.value,
             "clock": self.clock_mode.value,
             "rate_hz": self.scenario.controller.rate_hz,
@@ -448,7 +515,18 @@ def build_parser() -> argparse.ArgumentParser:
         description="The SCARA controller: runs a scenario at a fixed rate and commands the "
         "plant's joint velocities over CAN.",
     )
-    add_node_arguments(parser, "real time at absolute deadlines, or lockstep with the plant")
+    add_node_arguments(
+        parser,
+        "real time at absolute deadlines, or lockstep with the plant",
+        "scenario file or name to run now; without one the controller is a service that "
+        "waits for a task and a run request over CAN",
+    )
+    parser.set_defaults(scenario=None)
+    parser.add_argument(
+        "--service",
+        action="store_true",
+        help="be a service even with a scenario: it is the task in force, run on request",
+    )
     parser.add_argument(
         "--mode", choices=[m.value for m in Mode], help="coordination (default: the scenario's)"
     )
@@ -473,11 +551,31 @@ def add_comms_timeout_argument(parser: argparse.ArgumentParser, default: float |
     )
 
 
+def _behaviour(output: ControlOutput) -> Any:
+    """Which behaviour the blend of the last step came from (eq. 30's weights)."""
+    if output.k_c == 0.0:
+        return Behaviour.TRACKING
+    if output.k_t == 0.0:
+        return Behaviour.AVOIDING
+    return Behaviour.BLENDED
+
+
+def load(source: str | None) -> Scenario:
+    """The scenario to run, or without one the service's robot and gains (the defaults)."""
+    return load_planned(source) if source else Scenario("service", (), None)
+
+
 def make(setup: NodeSetup) -> ControllerNode:
-    scenario = setup.scenario
-    if setup.args.mode:
-        scenario = scenario.with_mode(Mode(setup.args.mode))
-    return ControllerNode(setup.bus, scenario, setup.clock_mode, setup.args.comms_timeout)
+    from controller.service import ServiceNode  # the service builds on this module
+
+    args = setup.args
+    scenario = setup.scenario.with_mode(Mode(args.mode)) if args.mode else setup.scenario
+    if args.service or not scenario.waypoints:
+        if setup.clock_mode is not ClockMode.REALTIME:
+            raise ConfigError("--clock", "the service runs in real time only")
+        task = scenario if scenario.waypoints else None
+        return ServiceNode(setup.bus, scenario, task, args.comms_timeout, args.out)
+    return ControllerNode(setup.bus, scenario, setup.clock_mode, args.comms_timeout)
 
 
 def run(node: Node, args: argparse.Namespace) -> None:
@@ -489,7 +587,7 @@ def run(node: Node, args: argparse.Namespace) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return node_main(build_parser(), argv, load_planned, make, run)
+    return node_main(build_parser(), argv, load, make, run)
 
 
 if __name__ == "__main__":

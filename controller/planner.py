@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from protocol.errors import ConfigError, KinematicsError
+from protocol.errors import ConfigError, KinematicsError, PathOutsideWorkspaceError
 from protocol.kinematics import inverse
 from protocol.scenario import Scenario, load_scenario
 
@@ -339,7 +339,7 @@ def check_plan(scenario: Scenario) -> None:
             inverse(scenario.robot, x, y, z, scenario.elbow)
         except KinematicsError as error:
             segment = trajectory.segment_index(t)
-            raise ConfigError(
+            raise PathOutsideWorkspaceError(
                 f"waypoints[{segment - 1}..{segment}]",
                 f"the planned path leaves the workspace at t = {t:.3f} s: {error}",
             ) from error

@@ -209,20 +209,21 @@ class PlantNode(Node):
         )
         self.stats.states_sent += 1
 
-    def status_record(self) -> Any:
+    def statuses(self) -> list[tuple[MessageCodec, Any]]:
         flags = PlantFlag(0)
         if self.collided:
             flags |= PlantFlag.COLLISION
         for name, hit in zip(_AT_STOP, self.model.at_limit, strict=True):
             if hit:
                 flags |= PlantFlag[name]
-        return PLANT_STATUS.Record(
+        status = PLANT_STATUS.Record(
             State=self.node_state,
             FaultCode=int(self.fault),
             Flags=int(flags),
             BadFrames=min(self.monitor.counts.bad, 0xFFFF),
             Extra=self.stats.steps & 0xFFFF,
         )
+        return [(PLANT_STATUS, status)]
 
     # --- loop ----------------------------------------------------------------------------------
 

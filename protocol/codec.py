@@ -263,15 +263,35 @@ class MessageCodec:
         return second & 0x0F, self._make(self.Record, values)
 
 
+@dataclass(frozen=True, slots=True)
+class IsoTpMessage:
+    """A DBC message that carries ISO-TP (ISO 15765-2) frames: no E2E header per frame; the
+    transfer is checked whole by its receiver."""
+
+    name: str
+    frame_id: int
+    length: int
+    schedule: str = "isotp"
+    cycle_time: float | None = None
+
+
 class Wire:
-    """Every message of the DBC, by name and by frame ID."""
+    """Every message of the DBC, by name and by frame ID: the E2E-protected ones compiled into
+    :class:`MessageCodec` s (``messages``), the ISO-TP carriers apart (``isotp``)."""
 
     def __init__(self, dbc_text: str = DBC_TEXT) -> None:
         database: Any = cantools.database.load_string(dbc_text, database_format="dbc")
         definition = database.dbc.attribute_definitions.get("ScaraSchedule")
-        self.messages = {
-            m.name: MessageCodec(m, _schedule(m, definition)) for m in database.messages
-        }
+        self.messages: dict[str, MessageCodec] = {}
+        self.isotp: dict[str, IsoTpMessage] = {}
+        for message in database.messages:
+            schedule = _schedule(message, definition)
+            if schedule == "isotp":
+                self.isotp[message.name] = IsoTpMessage(
+                    message.name, message.frame_id, message.length
+                )
+            else:
+                self.messages[message.name] = MessageCodec(message, schedule)
         self.by_id = {codec.frame_id: codec for codec in self.messages.values()}
 
     def __getitem__(self, name: str) -> MessageCodec:

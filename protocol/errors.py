@@ -15,6 +15,18 @@ class ConfigError(ScaraError, ValueError):
         self.field = field
 
 
+class UnreachableWaypointError(ConfigError):
+    """A scenario's waypoint is out of the arm's reach or joint limits."""
+
+
+class WaypointInObstacleError(ConfigError):
+    """A scenario's waypoint lies inside the inflated obstacle."""
+
+
+class PathOutsideWorkspaceError(ConfigError):
+    """A scenario's planned path between two reachable waypoints leaves the workspace."""
+
+
 class KinematicsError(ScaraError, ValueError):
     """A pose cannot be reached by the arm."""
 

@@ -27,10 +27,19 @@ STOP = WIRE["EmergencyStop"]
 NODE_COMMAND = WIRE["NodeCommand"]
 CONTROLLER_STATUS = WIRE["ControllerStatus"]
 PLANT_STATUS = WIRE["PlantStatus"]
+CONTROLLER_ANSWER = WIRE["ControllerAnswer"]
+COORDINATION = WIRE["ControllerCoordination"]
+RUN_STATUS = WIRE["ControllerRun"]
+SCENARIO_UPLOAD = WIRE.isotp["ScenarioUpload"]
+SCENARIO_DOWNLOAD = WIRE.isotp["ScenarioDownload"]
 
 NodeState: Any = WIRE.enum("NodeState", ("ControllerStatus", "State"), ("PlantStatus", "State"))
 NodeId: Any = WIRE.enum("NodeId", ("NodeCommand", "Target"), ("NodeCommand", "Source"))
 Request: Any = WIRE.enum("Request", ("NodeCommand", "Command"))
+Answered: Any = WIRE.enum("Answered", ("ControllerAnswer", "Request"))
+Reason: Any = WIRE.enum("Reason", ("ControllerAnswer", "Reason"))
+Behaviour: Any = WIRE.enum("Behaviour", ("ControllerRun", "Behaviour"))
+Side: Any = WIRE.enum("Side", ("ControllerCoordination", "Side"))
 ControllerFault: Any = WIRE.enum("ControllerFault", ("ControllerStatus", "FaultCode"), flag=True)
 ControllerFlag: Any = WIRE.enum("ControllerFlag", ("ControllerStatus", "Flags"), flag=True)
 PlantFault: Any = WIRE.enum("PlantFault", ("PlantStatus", "FaultCode"), flag=True)
@@ -48,6 +57,36 @@ class Counter:
     def next(self) -> int:
         self.value = (self.value + 1) % COUNTER_MODULO
         return self.value
+
+
+class JointStateParts:
+    """Puts JointState1-3 back together: the three frames of one plant step share one alive
+    counter and one CommandEcho; a set that is not complete, or not consistent, is dropped."""
+
+    def __init__(self) -> None:
+        self._parts: dict[int, list[Any]] = {}
+
+    def add(self, joint: int, counter: int, record: Any) -> tuple[Joints, Joints, int] | None:
+        """``(position, velocity, echo)`` once all three frames of ``counter`` are in."""
+        parts = self._parts.setdefault(counter, [None, None, None])
+        parts[joint] = record
+        if any(part is None for part in parts):
+            if len(self._parts) > 4:  # incomplete sets of lost frames: keep only recent ones
+                for old in list(self._parts)[:-2]:
+                    del self._parts[old]
+            return None
+        self._parts.clear()
+        first, second, third = parts
+        if not first.CommandEcho == second.CommandEcho == third.CommandEcho:
+            return None
+        return (
+            (first.Position, second.Position, third.Position),
+            (first.Velocity, second.Velocity, third.Velocity),
+            first.CommandEcho,
+        )
+
+    def clear(self) -> None:
+        self._parts.clear()
 
 
 def command_record(rates: Joints, enable: bool = True) -> Any:

@@ -36,6 +36,7 @@ from protocol.config import MAX_RATE_HZ, MIN_RATE_HZ
 from protocol.e2e import E2EMonitor
 from protocol.errors import EncodeError, ScaraError
 from protocol.faults import FaultInjector, FaultSpec, add_fault_arguments
+from protocol.isotp_link import IsoTpLink
 from protocol.messages import NODE_COMMAND, STOP, Counter, NodeId, NodeState, Request
 from protocol.realtime import settle_memory, tune_process
 from protocol.scenario import Scenario
@@ -50,7 +51,7 @@ class Node:
     """One participant on the bus (see the module docstring).
 
     Subclasses set the class attributes and implement :meth:`on_frame`, :meth:`on_reset` and
-    :meth:`status_record`; ``Fault`` is their fault-bit enumeration from the DBC, which has an
+    :meth:`statuses`; ``Fault`` is their fault-bit enumeration from the DBC, which has an
     ``ESTOP`` bit.
     """
 
@@ -71,6 +72,8 @@ class Node:
         self.node_state = NodeState.READY
         self.fault = self.Fault(0)
         self.send_failures = 0
+        self.isotp: IsoTpLink | None = None
+        """An ISO-TP link whose receive ID this node's reader hands over (see ``handle``)."""
         self._next_status = -float("inf")
 
     # --- frames in ----------------------------------------------------------------------
@@ -84,6 +87,9 @@ class Node:
 
     def handle(self, message: can.Message) -> None:
         """Act on one received frame, or count it and drop it."""
+        if self.isotp is not None and message.arbitration_id == self.isotp.rxid:
+            self.isotp.feed(message)
+            return
         accepted = self.monitor.accept(message, self._accepted)
         if accepted is None:
             return
@@ -92,7 +98,7 @@ class Node:
             self.emergency_stop()
         elif codec is NODE_COMMAND:
             if record.Target in (self.node_id, NodeId.ALL):
-                self.on_request(Request(record.Command))
+                self.on_request(Request(record.Command), record.Ticket)
         else:
             self.on_frame(codec, counter, record, message)
 
@@ -102,8 +108,9 @@ class Node:
         """A valid frame of one of :attr:`listens`."""
         raise NotImplementedError
 
-    def on_request(self, request: Any) -> None:
-        """A NodeCommand for this node: reset or stop (``run`` is the controller's)."""
+    def on_request(self, request: Any, ticket: int) -> None:
+        """A NodeCommand for this node: reset or stop (``run`` and ``describe`` are the
+        controller's service's; ``ticket`` is the sender's, for an answer)."""
         if request == Request.RESET:
             self.log.info("reset")
             self.on_reset()
@@ -163,15 +170,19 @@ class Node:
             self.log.warning("send failed: %s", error)
 
     def send_status_if_due(self, now: float) -> None:
-        """The status frame, once per its DBC cycle time."""
+        """The status frames, together, once per the status frame's DBC cycle time."""
         if now >= self._next_status:
+            frames = [
+                (codec, record, self.next_counter(codec)) for codec, record in self.statuses()
+            ]
             try:
-                self.send(self.status, self.status_record())
+                self.send_together(frames)
             except EncodeError as error:
                 self.log.error("status not sent: %s", error)
             self._next_status = now + (self.status.cycle_time or 0.1)
 
-    def status_record(self) -> Any:
+    def statuses(self) -> list[tuple[MessageCodec, Any]]:
+        """The cyclic status frames of this node (its :attr:`status` first)."""
         raise NotImplementedError
 
     # --- life cycle ---------------------------------------------------------------------
@@ -211,9 +222,11 @@ class NodeSetup:
     clock_mode: ClockMode
 
 
-def add_node_arguments(parser: argparse.ArgumentParser, clock_help: str) -> None:
+def add_node_arguments(
+    parser: argparse.ArgumentParser, clock_help: str, scenario_help: str = "scenario file or name"
+) -> None:
     """The flags every node process takes."""
-    parser.add_argument("scenario", nargs="?", default="reference", help="scenario file or name")
+    parser.add_argument("scenario", nargs="?", default="reference", help=scenario_help)
     parser.add_argument(
         "--clock",
         choices=[mode.value for mode in ClockMode],

@@ -10,38 +10,37 @@ check of the planned path, :func:`controller.planner.check_plan`.) Errors are
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from enum import Enum
 from pathlib import Path
 from typing import Any
 
 from protocol.config import ControllerConfig, PlantConfig, RobotConfig
-from protocol.errors import ConfigError, KinematicsError
+from protocol.errors import (
+    ConfigError,
+    KinematicsError,
+    UnreachableWaypointError,
+    WaypointInObstacleError,
+)
 from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow, inverse
 from protocol.messages import COMMAND, STATE
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+WAYPOINT_TOLERANCE = 0.002
+"""m: a waypoint counts as passed when the TCP comes this close."""
 MAX_DURATION = 3600.0
 """s: the longest run a scenario may ask for (its waypoints' span plus the settling time)."""
 DEFAULT_TOOL_RADIUS = 0.01
 DEFAULT_MARGIN = 0.01
 
-_TOP_LEVEL = {
-    "name",
-    "description",
-    "mode",
-    "elbow",
-    "settle_time",
-    "robot",
-    "controller",
-    "plant",
-    "obstacle",
-    "waypoints",
-}
+_TASK = {"name", "description", "mode", "elbow", "settle_time", "obstacle", "waypoints"}
+"""What an operator sets; a scenario file adds the robot, the gains and the plant model."""
+_TOP_LEVEL = _TASK | {"robot", "controller", "plant"}
 
 
 class Mode(Enum):
@@ -123,6 +122,92 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
         plant = PlantConfig(**plant_table)
     except TypeError as error:
         raise ConfigError("plant", str(error)) from error
+    base = Scenario("", (), None, robot=robot, controller=controller, plant=plant)
+    return _with_task(base, document, str(document.get("name", default_name)))
+
+
+def parse_task(document: Mapping[str, Any], base: Scenario) -> Scenario:
+    """A scenario from a task document (what an operator sets: name, mode, waypoints,
+    obstacle, settling time, elbow) on ``base``'s robot, gains and plant model, checked as a
+    scenario file is. The JSON an operator sends over the wire (:func:`encode_task`)."""
+    unknown = set(document) - _TASK
+    if unknown:
+        raise ConfigError(sorted(unknown)[0], f"unknown field; known: {sorted(_TASK)}")
+    return _with_task(base, document, str(document.get("name", "task")))
+
+
+def task_document(scenario: Scenario) -> dict[str, Any]:
+    """The task part of ``scenario`` as a document :func:`parse_task` reads back."""
+    document: dict[str, Any] = {
+        "name": scenario.name,
+        "mode": scenario.mode.value,
+        "elbow": "down" if scenario.elbow is Elbow.DOWN else "up",
+        "settle_time": scenario.settle_time,
+        "waypoints": [{"t": w.t, "x": w.x, "y": w.y, "z": w.z} for w in scenario.waypoints],
+    }
+    obstacle = scenario.obstacle
+    if obstacle is not None:
+        document["obstacle"] = {
+            "x": obstacle.x,
+            "y": obstacle.y,
+            "long_diameter": obstacle.long_diameter,
+            "short_diameter": obstacle.short_diameter,
+            "height": obstacle.height,
+            "yaw_deg": math.degrees(obstacle.yaw),
+            "tool_radius": scenario.tool_radius,
+            "margin": obstacle.inflation - scenario.tool_radius,
+        }
+    return document
+
+
+def scenario_document(scenario: Scenario) -> dict[str, Any]:
+    """The whole of ``scenario`` (task, robot, gains, plant model) as the tables of a scenario
+    file, which :func:`parse_scenario` reads back: what a run's results carry."""
+    angles = {"theta1_min", "theta1_max", "theta2_min", "theta2_max"}
+    robot = {
+        (f"{name}_deg" if name in angles else name): (
+            math.degrees(value) if name in angles else value
+        )
+        for name, value in ((f.name, getattr(scenario.robot, f.name)) for f in fields(RobotConfig))
+    }
+    return task_document(scenario) | {
+        "robot": robot,
+        "controller": asdict(scenario.controller),
+        "plant": asdict(scenario.plant),
+    }
+
+
+MAX_TASK_BYTES = 4095
+"""The most one ISO-TP transfer on classic CAN carries."""
+
+
+def encode_task(scenario: Scenario, ticket: int) -> bytes:
+    """The task as compact UTF-8 JSON with the sender's ``ticket`` (0-255), for ScenarioUpload."""
+    document = {"ticket": ticket} | task_document(scenario)
+    payload = json.dumps(document, separators=(",", ":")).encode()
+    if len(payload) > MAX_TASK_BYTES:
+        raise ConfigError(
+            "waypoints", f"the task takes {len(payload)} bytes, at most {MAX_TASK_BYTES}"
+        )
+    return payload
+
+
+def read_task(payload: bytes) -> tuple[int, dict[str, Any]]:
+    """``(ticket, task document)`` of a transfer, for :func:`parse_task`; :class:`ConfigError`
+    (field ``document`` or ``ticket``) if it is not a JSON object with a valid ticket."""
+    try:
+        document = json.loads(payload.decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ConfigError("document", f"not UTF-8 JSON: {error}") from error
+    if not isinstance(document, dict):
+        raise ConfigError("document", "must be a JSON object")
+    ticket = document.pop("ticket", 0)
+    if isinstance(ticket, bool) or not isinstance(ticket, int) or not 0 <= ticket <= 255:
+        raise ConfigError("ticket", f"must be an integer 0-255, got {ticket!r}")
+    return ticket, document
+
+
+def _with_task(base: Scenario, document: Mapping[str, Any], name: str) -> Scenario:
     mode_name = document.get("mode", "fuzzy")
     try:
         mode = Mode(mode_name)
@@ -142,18 +227,15 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
     tool_radius = _number(
         obstacle_table.get("tool_radius", DEFAULT_TOOL_RADIUS), "obstacle.tool_radius"
     )
-    waypoints = _parse_waypoints(document.get("waypoints"))
-    scenario = Scenario(
-        name=str(document.get("name", default_name)),
-        waypoints=waypoints,
+    scenario = replace(
+        base,
+        name=name,
+        waypoints=_parse_waypoints(document.get("waypoints")),
         obstacle=obstacle,
         mode=mode,
         elbow=elbow,
         settle_time=settle_time,
         description=str(document.get("description", "")),
-        robot=robot,
-        controller=controller,
-        plant=plant,
         tool_radius=tool_radius,
     )
     if scenario.duration > MAX_DURATION:
@@ -173,13 +255,13 @@ def check_scenario(scenario: Scenario) -> None:
         try:
             inverse(scenario.robot, point.x, point.y, point.z, scenario.elbow)
         except KinematicsError as error:
-            raise ConfigError(f"waypoints[{index}]", str(error)) from error
+            raise UnreachableWaypointError(f"waypoints[{index}]", str(error)) from error
         if (
             obstacle is not None
             and point.z < obstacle.height + obstacle.inflation
             and obstacle.contains(point.x, point.y)
         ):
-            raise ConfigError(
+            raise WaypointInObstacleError(
                 f"waypoints[{index}]",
                 f"({point.x:g}, {point.y:g}, {point.z:g}) is inside the inflated obstacle",
             )

@@ -205,8 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not (args.out / "controller.json").exists():
         print(f"scara-run: the controller wrote no result (exit codes {codes})", file=sys.stderr)
         return 1
-    mode = Mode(args.mode) if args.mode else scenario.mode
-    print(format_report(read_run(args.out, scenario.with_mode(mode))))
+    print(format_report(read_run(args.out)))
     return controller.returncode or 0
 
 

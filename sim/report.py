@@ -18,11 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from controller.planner import load_planned
 from controller.runlog import COLUMNS, RunLog
 from protocol.cli import add_verbosity, configure_logging
 from protocol.errors import ScaraError
-from protocol.scenario import Mode, Scenario
+from protocol.scenario import parse_scenario
 from sim.measures import Measures, compute_measures, format_table
 
 MIN_ROWS = 20
@@ -48,16 +47,14 @@ def read_log(path: Path) -> RunLog:
         return RunLog.from_array(saved["data"])
 
 
-def read_run(out: Path, scenario: Scenario | None = None) -> RunReport:
-    """The report of the run in ``out``; ``scenario`` defaults to the one the result names,
-    in the mode and at the rate the controller ran."""
+def read_run(out: Path) -> RunReport:
+    """The report of the run in ``out``, measured against the scenario the controller ran
+    (its result carries it whole)."""
     controller: dict[str, Any] = json.loads((out / "controller.json").read_text())
     plant_file = out / "plant_sim.json"
     plant = json.loads(plant_file.read_text()) if plant_file.exists() else None
     log = read_log(out / "controller_log.npz")
-    if scenario is None:
-        scenario = load_planned(controller["scenario"])
-    scenario = scenario.with_mode(Mode(controller["mode"])).with_rate(controller["rate_hz"])
+    scenario = parse_scenario(controller["scenario_document"])
     measures = compute_measures(scenario, log) if len(log) >= MIN_ROWS else None
     return RunReport(controller, plant, log, measures)
 
@@ -118,9 +115,6 @@ def build_parser() -> argparse.ArgumentParser:
         "its nodes wrote (--out of controller and plant_sim).",
     )
     parser.add_argument("run", type=Path, help="the run folder, e.g. out/run")
-    parser.add_argument(
-        "--scenario", help="the scenario file, if not the packaged one the result names"
-    )
     add_verbosity(parser)
     return parser
 
@@ -129,8 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
     try:
-        scenario = load_planned(args.scenario) if args.scenario else None
-        report = read_run(args.run, scenario)
+        report = read_run(args.run)
     except (OSError, ValueError, KeyError, ScaraError) as error:
         print(f"scara-report: cannot read the run in {args.run}: {error}", file=sys.stderr)
         return 2

@@ -18,7 +18,8 @@ including the intermission.
 
 The schedule is the DBC's: each message's ``ScaraSchedule`` attribute says whether it goes
 out every control tick (``tick``), every tick in lockstep only (``lockstep_tick``), on its
-own ``GenMsgCycleTime`` (``cyclic``), or on events only (``event``, no cyclic load).
+own ``GenMsgCycleTime`` (``cyclic``), or on events only (``event``, and the ISO-TP transfers
+``isotp``: no cyclic load).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from protocol.codec import WIRE, MessageCodec
+from protocol.codec import WIRE, IsoTpMessage, MessageCodec
 
 MAX_DLC = 8
 """Classic CAN: at most 8 data bytes."""
@@ -47,7 +48,7 @@ def frame_bits(dlc: int, *, stuffing: bool = True) -> int:
     return stuffed + UNSTUFFED_OVERHEAD_BITS + stuff_bits
 
 
-def schedule(codec: MessageCodec, *, lockstep: bool) -> tuple[str, float, float]:
+def schedule(codec: MessageCodec | IsoTpMessage, *, lockstep: bool) -> tuple[str, float, float]:
     """``(label, frames per control tick, frames per second regardless of the tick)``."""
     if codec.schedule == "tick" or (codec.schedule == "lockstep_tick" and lockstep):
         return "every tick", 1.0, 0.0
@@ -58,7 +59,9 @@ def schedule(codec: MessageCodec, *, lockstep: bool) -> tuple[str, float, float]
     return "event", 0.0, 0.0
 
 
-FRAMES = tuple(sorted(WIRE.messages.values(), key=lambda codec: codec.frame_id))
+FRAMES: tuple[MessageCodec | IsoTpMessage, ...] = tuple(
+    sorted([*WIRE.messages.values(), *WIRE.isotp.values()], key=lambda codec: codec.frame_id)
+)
 """The messages of ``scara.dbc``, lowest ID (highest priority) first."""
 
 

@@ -110,7 +110,7 @@ def test_a_hold_longer_than_the_comms_timeout_latches_a_fault(
     tick(controller, clock)
     assert controller.node_state is NodeState.FAULT
     assert commands(peer) == [(0, 0.0, 0.0, 0.0)]
-    reset = NODE_COMMAND.Record(Command=1, Target=1, Source=3)
+    reset = NODE_COMMAND.Record(Command=1, Target=1, Source=3, Ticket=0)
     peer.send(frame(NODE_COMMAND.frame_id, NODE_COMMAND.encode(reset, 0)))
     send_state(peer, (counter + 1) % 16)
     tick(controller, clock)

@@ -477,7 +477,7 @@ def test_controller_resumes_after_plant_killed_restarted_and_reset(
     assert ZERO in commands_between(before, faulted.timestamp, math.inf)
     assert all(c == ZERO for c in commands_between(before, killed + SETTLED, math.inf))
 
-    record = NODE_COMMAND.Record(Command=1, Target=1, Source=3)  # reset, controller, operator
+    record = NODE_COMMAND.Record(Command=1, Target=1, Source=3, Ticket=0)  # reset, controller, operator
     reset = observer.send(NODE_COMMAND.frame_id, NODE_COMMAND.encode(record, 0))
     running = observer.wait_for(
         lambda m: m.timestamp > reset and controller_in(NodeState.RUNNING)(m), 5.0

@@ -150,7 +150,7 @@ def test_plant_latches_emergency_stop_until_a_reset(
     deliver(node_bus, plant)
     assert plant.node_state is NodeState.ESTOP
     assert plant.command == (0.0, 0.0, 0.0)
-    reset = NODE_COMMAND.Record(Command=1, Target=2, Source=3)
+    reset = NODE_COMMAND.Record(Command=1, Target=2, Source=3, Ticket=0)
     peer.send(frame(NODE_COMMAND.frame_id, NODE_COMMAND.encode(reset, 0)))
     peer.send(command(1.0, 1))
     deliver(node_bus, plant)

@@ -1,0 +1,231 @@
+"""The controller as a service: idle holding the arm, it takes a task over the wire, runs it on
+request, and comes back to idle.
+
+What an operator (the Zenoh bridge, or any CAN tool) can do, each answered with a
+ControllerAnswer frame carrying the request's ticket (accepted, or rejected with a reason):
+
+- **set the task** (waypoints, obstacle, mode: the paper's GUI buttons): a task document sent
+  over ISO-TP on ScenarioUpload, checked with the same rules as a scenario file, the
+  controller's planned-path check included. Nothing is half-applied: a rejected or broken
+  transfer leaves the task in force as it was, and a change while a run goes on is refused;
+- **run**: the task starts from wherever the arm is: the plan gets an approach segment from
+  the arm's position to the first waypoint;
+- **stop**: the run ends where it is, and the service holds the arm (zero command);
+- **reset**: faults and e-stop cleared, back to idle, the task kept;
+- **describe**: the task in force, sent back over ISO-TP on ScenarioDownload.
+
+A run keeps every rule of the one-shot controller (holds on comms loss, latched fault after
+the comms-loss timeout) and, with ``--out``, writes its result and log when it ends.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import can
+
+from controller.node import COMMS_TIMEOUT, ControllerNode
+from controller.planner import check_plan
+from protocol.errors import (
+    ConfigError,
+    PathOutsideWorkspaceError,
+    UnreachableWaypointError,
+    WaypointInObstacleError,
+)
+from protocol.isotp_link import IsoTpLink
+from protocol.kinematics import forward
+from protocol.messages import (
+    CONTROLLER_ANSWER,
+    SCENARIO_DOWNLOAD,
+    SCENARIO_UPLOAD,
+    Answered,
+    NodeState,
+    Reason,
+    Request,
+)
+from protocol.node import ClockMode
+from protocol.scenario import Scenario, Waypoint, encode_task, parse_task, read_task
+
+APPROACH_SPEED = 0.1
+"""m/s: the mean speed of the approach segment to the task's first waypoint."""
+MIN_APPROACH = 0.5
+"""s: the shortest approach segment."""
+ALREADY_THERE = 0.001
+"""m: closer than this to the first waypoint, a run needs no approach segment."""
+
+
+class ServiceNode(ControllerNode):
+    """The controller process in service mode (see the module docstring)."""
+
+    starts_on_first_state = False
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        base: Scenario,
+        task: Scenario | None = None,
+        comms_timeout: float = COMMS_TIMEOUT,
+        out: Path | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.base = base
+        self.task = task
+        self.out = out
+        self.runs = 0
+        super().__init__(
+            bus,
+            task or base,
+            ClockMode.REALTIME,
+            comms_timeout,
+            clock=clock,
+            sleep=sleep,
+            wall_clock=wall_clock,
+        )
+        self.transfers = IsoTpLink(
+            self._transmit_one,
+            SCENARIO_DOWNLOAD.frame_id,
+            SCENARIO_UPLOAD.frame_id,
+            on_error=lambda error: self.log.warning("scenario transfer broken: %s", error),
+        )
+        self.isotp = self.transfers
+
+    def _transmit_one(self, message: can.Message) -> None:
+        self._transmit([message])
+
+    # --- life cycle ----------------------------------------------------------------------
+
+    def on_reset(self) -> None:
+        """Faults and e-stop cleared; idle, holding the arm; the task kept."""
+        self._last_output = None
+        self.monitor.forget()
+        self.fault = self.Fault(0)
+        self.node_state = NodeState.READY
+
+    @property
+    def done(self) -> bool:
+        return False  # a service serves until it is stopped
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if not self.fault else 1
+
+    def on_run_complete(self) -> None:
+        self._end_run()
+
+    def _end_run(self) -> None:
+        """Back to idle; the run's result and log written to ``out``, if given."""
+        self.node_state = NodeState.READY
+        self.runs += 1
+        self.log.info("run %d ended (%s)", self.runs, "completed" if self.finished else "stopped")
+        if self.out is not None:
+            self.out.mkdir(parents=True, exist_ok=True)
+            self.save(self.out, self.result())
+
+    # --- requests ------------------------------------------------------------------------
+
+    def on_request(self, request: Any, ticket: int) -> None:
+        if request == Request.RESET:
+            self.on_reset()
+            self._answer(Answered.RESET, ticket, Reason.NONE)
+        elif request == Request.STOP:
+            if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+                self.send_zero()
+                self._end_run()
+            self._answer(Answered.STOP, ticket, Reason.NONE)
+        elif request == Request.RUN:
+            self._answer(Answered.RUN, ticket, self._start_run())
+        elif request == Request.DESCRIBE:
+            if self.task is None:
+                self._answer(Answered.DESCRIBE, ticket, Reason.NO_SCENARIO)
+            else:
+                self._answer(Answered.DESCRIBE, ticket, Reason.NONE)
+                self.transfers.send(encode_task(self.task, ticket))
+
+    def _answer(self, request: Any, ticket: int, reason: Any) -> None:
+        record = CONTROLLER_ANSWER.Record(
+            Request=request, Ticket=ticket, Accepted=int(reason == Reason.NONE), Reason=reason
+        )
+        self.send(CONTROLLER_ANSWER, record)
+        if reason != Reason.NONE:
+            self.log.info("%s refused: %s", request.name.lower(), reason.name.lower())
+
+    def _start_run(self) -> Any:
+        """Start the task from where the arm is; the reason if it cannot start."""
+        if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+            return Reason.BUSY
+        if self.node_state is not NodeState.READY:
+            return Reason.FAULTED
+        if self.task is None:
+            return Reason.NO_SCENARIO
+        state = self.state
+        if state is None or self.clock() - self._last_fresh > self.comms_timeout:
+            return Reason.NO_JOINT_STATE
+        try:
+            run, approach = with_approach(self.task, forward(self.task.robot, *state.position))
+        except ConfigError:
+            return Reason.APPROACH_BLOCKED
+        self.prepare(run, approach)
+        self.node_state = NodeState.RUNNING
+        self.log.info("run %d of %s started", self.runs + 1, self.task.name)
+        return Reason.NONE
+
+    # --- tasks over ISO-TP -----------------------------------------------------------------
+
+    def serve(self, now: float) -> None:
+        """Take the transfers completed since the last tick."""
+        for payload in self.transfers.poll():
+            self._on_task(payload)
+
+    def _on_task(self, payload: bytes) -> None:
+        try:
+            ticket, document = read_task(payload)
+        except ConfigError as error:
+            self.log.info("task refused: %s", error)
+            self._answer(Answered.SCENARIO, 0, Reason.MALFORMED)
+            return
+        if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+            self._answer(Answered.SCENARIO, ticket, Reason.BUSY)
+            return
+        try:
+            task = parse_task(document, self.base)
+            check_plan(task)
+        except ConfigError as error:
+            self.log.info("task refused: %s", error)
+            self._answer(Answered.SCENARIO, ticket, reason_of(error))
+            return
+        self.task = task
+        self.log.info("task %s set (%d waypoints)", task.name, len(task.waypoints))
+        self._answer(Answered.SCENARIO, ticket, Reason.NONE)
+
+
+def with_approach(task: Scenario, tcp: tuple[float, float, float]) -> tuple[Scenario, int]:
+    """``task`` preceded by a segment from ``tcp`` to its first waypoint (at
+    :data:`APPROACH_SPEED`, :data:`MIN_APPROACH` at least), and how many waypoints that added
+    (0 when the arm is already there). :class:`ConfigError` if that segment is not a path."""
+    first = task.waypoints[0]
+    distance = math.dist(tcp, (first.x, first.y, first.z))
+    if distance < ALREADY_THERE:
+        return task, 0
+    lead = max(MIN_APPROACH, distance / APPROACH_SPEED)
+    start = Waypoint(first.t - lead, *tcp)
+    run = replace(task, waypoints=(start, *task.waypoints))
+    check_plan(run)
+    return run, 1
+
+
+def reason_of(error: ConfigError) -> Any:
+    """The ControllerAnswer reason for a task's error."""
+    if isinstance(error, UnreachableWaypointError):
+        return Reason.UNREACHABLE
+    if isinstance(error, WaypointInObstacleError):
+        return Reason.INSIDE_OBSTACLE
+    if isinstance(error, PathOutsideWorkspaceError):
+        return Reason.PATH_LEAVES_WORKSPACE
+    return Reason.BAD_FIELD
