@@ -37,7 +37,9 @@ from protocol.messages import (
     STATE_IDS,
     STEP,
     ControllerFault,
+    NodeId,
     NodeState,
+    Request,
 )
 from protocol.scenario import Mode, load_scenario
 from sim.report import read_run
@@ -477,7 +479,9 @@ def test_controller_resumes_after_plant_killed_restarted_and_reset(
     assert ZERO in commands_between(before, faulted.timestamp, math.inf)
     assert all(c == ZERO for c in commands_between(before, killed + SETTLED, math.inf))
 
-    record = NODE_COMMAND.Record(Command=1, Target=1, Source=3, Ticket=0)  # reset, controller, operator
+    record = NODE_COMMAND.Record(
+        Command=Request.RESET, Target=NodeId.CONTROLLER, Source=NodeId.OPERATOR, Ticket=0
+    )
     reset = observer.send(NODE_COMMAND.frame_id, NODE_COMMAND.encode(record, 0))
     running = observer.wait_for(
         lambda m: m.timestamp > reset and controller_in(NodeState.RUNNING)(m), 5.0
