@@ -16,7 +16,15 @@ from protocol.codec import DBC_TEXT
 DATABASE: Any = cantools.database.load_string(DBC_TEXT, database_format="dbc")
 DLC = {m.name: m.length for m in DATABASE.messages}
 PER_TICK = ("JointVelocityCommand", "JointState1", "JointState2", "JointState3")
-STATUS = ("ControllerStatus", "PlantStatus")
+CYCLIC = {  # name: frames per second, from the DBC's attributes
+    m.name: 1000.0 / m.cycle_time
+    for m in DATABASE.messages
+    if m.dbc.attributes.get("ScaraSchedule")
+    and m.dbc.attributes["ScaraSchedule"].definition.choices[
+        m.dbc.attributes["ScaraSchedule"].value
+    ]
+    == "cyclic"
+}
 
 
 def test_frame_bits_by_hand() -> None:
@@ -61,7 +69,7 @@ def test_schedule_is_the_dbcs_cycle_time_attributes() -> None:
 
 def test_load_scales_linearly_with_rate() -> None:
     per_tick = sum(frame_bits(DLC[name]) for name in PER_TICK)
-    status = 10.0 * sum(frame_bits(DLC[name]) for name in STATUS)
+    status = sum(hz * frame_bits(DLC[name]) for name, hz in CYCLIC.items())
     for rate in (100.0, 250.0, 500.0, 1000.0, 2000.0):
         load = bus_load(rate)
         assert load.bits_per_s == pytest.approx(per_tick * rate + status)
@@ -83,7 +91,9 @@ def test_lockstep_adds_the_step_sync_frame() -> None:
 def test_real_time_load_at_500_hz_is_under_30_percent() -> None:
     assert bus_load(500.0).fraction < 0.30
     # The known shortfall: four frames every tick, about 51 % at 1 kHz.
-    assert bus_load(1000.0).fraction == pytest.approx(0.5127)
+    # Four frames (8, 7, 7, 7 bytes) a tick at 55 + 10 s bits each, four of 8 bytes at 10 Hz:
+    per_second = 1000 * (4 * 55 + 10 * (8 + 7 + 7 + 7)) + 10 * 4 * frame_bits(8)
+    assert bus_load(1000.0).fraction == pytest.approx(per_second / 1_000_000)
     rate = max_rate_hz(0.30)
     assert bus_load(rate).fraction == pytest.approx(0.30)
 
@@ -129,7 +139,7 @@ def test_main_prints_a_table_and_exits_0(capsys: pytest.CaptureFixture[str]) -> 
     assert table[0].startswith("| Frame | ID | DLC | Bits | Schedule | 500 Hz")
     assert "1000 Hz: bit/s" in table[0]
     assert any(line.startswith("| JointVelocityCommand | 0x100 | 8 | 135 |") for line in table)
-    assert "| 25.8 % |" in out and "| 51.3 % |" in out
+    assert "| 26.0 % |" in out and "| 51.5 % |" in out
     assert "Under 30.0 %: 500 Hz; at or above: 1000 Hz." in out
     assert "1000 Hz: at least 47.0 %" in out
 
