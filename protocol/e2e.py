@@ -19,6 +19,10 @@ from protocol.errors import DecodeError
 
 MAX_FORWARD_JUMP = COUNTER_MODULO // 2
 """A counter more than this far ahead is taken as an old frame arriving late (stale)."""
+RESYNC_AFTER = 0.5
+"""s of silence on a frame ID after which its counter starts over: no frame is that late
+on a bus, so a jump back after such a gap is a sender that restarted (a new bridge's first
+command, say), not an old frame; AUTOSAR's E2E state machine re-initialises the same way."""
 
 
 class Check(Enum):
@@ -56,9 +60,18 @@ class E2EMonitor:
     counts: E2ECounts = field(default_factory=E2ECounts)
     _last: dict[int, int] = field(default_factory=dict)
     _stale: dict[int, int] = field(default_factory=dict)
+    _seen: dict[int, float] = field(default_factory=dict)
 
-    def check(self, frame_id: int, counter: int) -> Check:
+    def check(self, frame_id: int, counter: int, received: float | None = None) -> Check:
+        """Classify ``counter``; with ``received`` (s), a frame ID silent for
+        :data:`RESYNC_AFTER` starts over."""
         last = self._last.get(frame_id)
+        if received is not None:
+            silent = received - self._seen.get(frame_id, received) > RESYNC_AFTER
+            self._seen[frame_id] = received
+            if silent:
+                last = None
+                self._stale.pop(frame_id, None)
         if last is None:
             self._last[frame_id] = counter
             self.counts.ok += 1
@@ -104,7 +117,7 @@ class E2EMonitor:
         except DecodeError:
             self.corrupt()
             return None
-        if not self.check(codec.frame_id, counter).usable:
+        if not self.check(codec.frame_id, counter, message.timestamp).usable:
             return None
         return codec, counter, record
 
@@ -116,3 +129,4 @@ class E2EMonitor:
         """Start over, e.g. when a restarted peer begins again."""
         self._last.clear()
         self._stale.clear()
+        self._seen.clear()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from protocol.e2e import Check, E2EMonitor
+from protocol.e2e import RESYNC_AFTER, Check, E2EMonitor
 
 
 def test_alive_counter_classification() -> None:
@@ -29,3 +29,16 @@ def test_alive_counter_resynchronises_after_a_long_gap() -> None:
     # A single late frame does not move the receiver back.
     assert monitor.check(0x110, 10) is Check.STALE
     assert monitor.check(0x110, 14) is Check.OK
+
+
+def test_a_sender_silent_for_longer_than_any_frame_is_late_starts_over() -> None:
+    """A restarted sender (a new bridge) begins at counter 0: after a silence its first
+    command is acted on, while the same jump back within the silence is a stale frame."""
+    monitor = E2EMonitor()
+    for time, counter in ((10.0, 4), (10.1, 5)):
+        assert monitor.check(0x40, counter, time).usable
+    assert monitor.check(0x40, 0, 10.1 + RESYNC_AFTER / 2) is Check.STALE
+    restarted = 10.1 + RESYNC_AFTER / 2 + RESYNC_AFTER * 1.01
+    assert monitor.check(0x40, 0, restarted) is Check.FIRST
+    assert monitor.check(0x40, 0, restarted + 0.01) is Check.REPEATED
+    assert monitor.check(0x40, 1, restarted + 0.02) is Check.OK
