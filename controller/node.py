@@ -247,7 +247,7 @@ class ControllerNode(Node):
         self._send_command(ZERO, False)
 
     def statuses(self) -> list[tuple[MessageCodec, Any]]:
-        """ControllerStatus, and for monitors the coordination and the run's progress."""
+        """For monitors the coordination and the run's progress, then ControllerStatus."""
         flags = ControllerFlag(0)
         if self.clock_mode is ClockMode.LOCKSTEP:
             flags |= ControllerFlag.LOCKSTEP
@@ -270,8 +270,8 @@ class ControllerNode(Node):
             measurement = output.measurement
             coordination = COORDINATION.Record(
                 Side=_SIDES[self.law.side],
-                KT=output.k_t,
-                KC=output.k_c,
+                KT=min(max(output.k_t, 0.0), 1.0),  # a sum of products may be 1 + 1 ulp
+                KC=min(max(output.k_c, 0.0), 1.0),
                 Beta=measurement.beta,
                 DLeft=min(measurement.d_left, _D_MAX),
                 DRight=min(measurement.d_right, _D_MAX),
@@ -284,7 +284,8 @@ class ControllerNode(Node):
             LatenessMax=min(round(self._late_max * 1e6), 0xFFFF),
         )
         self._late_max = 0.0
-        return [(CONTROLLER_STATUS, status), (COORDINATION, coordination), (RUN_STATUS, run)]
+        # The details first: a monitor that sees the state change knows the run's progress.
+        return [(COORDINATION, coordination), (RUN_STATUS, run), (CONTROLLER_STATUS, status)]
 
     # --- one control step ----------------------------------------------------------------------
 
@@ -578,8 +579,7 @@ def make(setup: NodeSetup) -> ControllerNode:
     return ControllerNode(setup.bus, scenario, setup.clock_mode, args.comms_timeout)
 
 
-def run(node: Node, args: argparse.Namespace) -> None:
-    assert isinstance(node, ControllerNode)
+def run(node: ControllerNode, args: argparse.Namespace) -> None:
     if node.clock_mode is ClockMode.LOCKSTEP:
         node.run_lockstep(max_wall_time=args.max_wall_time)
     else:

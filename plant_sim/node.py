@@ -266,8 +266,7 @@ def make(setup: NodeSetup) -> PlantNode:
     return PlantNode(setup.bus, setup.scenario, setup.clock_mode)
 
 
-def run(node: Node, args: argparse.Namespace) -> None:
-    assert isinstance(node, PlantNode)
+def run(node: PlantNode, args: argparse.Namespace) -> None:
     node.run(args.duration)
 
 

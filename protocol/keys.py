@@ -54,7 +54,7 @@ def alive_key(robot: str, process: str) -> str:
 @cache
 def schema(name: str) -> dict[str, Any]:
     """The JSON Schema of a state key (``joints`` ...), of a command's payload
-    (``cmd-mode`` ...) or of a command's reply (``reply``)."""
+    (``cmd-mode`` ...), of a command's reply (``reply``) or error reply (``error``)."""
     text = resources.files("protocol").joinpath(f"schemas/{name}.schema.json").read_text()
     loaded: dict[str, Any] = json.loads(text)
     return loaded

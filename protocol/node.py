@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 from enum import Enum
 from pathlib import Path
 from types import FrameType
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import can
 
@@ -182,7 +182,8 @@ class Node:
             self._next_status = now + (self.status.cycle_time or 0.1)
 
     def statuses(self) -> list[tuple[MessageCodec, Any]]:
-        """The cyclic status frames of this node (its :attr:`status` first)."""
+        """The cyclic status frames of this node, :attr:`status` among them, sent together
+        in this order."""
         raise NotImplementedError
 
     # --- life cycle ---------------------------------------------------------------------
@@ -262,12 +263,15 @@ def add_timing_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+NodeT = TypeVar("NodeT", bound=Node)
+
+
 def node_main(
     parser: argparse.ArgumentParser,
     argv: Sequence[str] | None,
     load: Callable[[str], Scenario],
-    make: Callable[[NodeSetup], Node],
-    run: Callable[[Node, argparse.Namespace], None],
+    make: Callable[[NodeSetup], NodeT],
+    run: Callable[[NodeT, argparse.Namespace], None],
 ) -> int:
     """The life of a node process: set up, run, report, close (see the module docstring).
 

@@ -153,9 +153,9 @@ def task_document(scenario: Scenario) -> dict[str, Any]:
             "long_diameter": obstacle.long_diameter,
             "short_diameter": obstacle.short_diameter,
             "height": obstacle.height,
-            "yaw_deg": math.degrees(obstacle.yaw),
+            "yaw_deg": round(math.degrees(obstacle.yaw), 9),  # 30, not 29.999999999999996
             "tool_radius": scenario.tool_radius,
-            "margin": obstacle.inflation - scenario.tool_radius,
+            "margin": round(obstacle.inflation - scenario.tool_radius, 12),
         }
     return document
 

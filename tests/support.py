@@ -157,10 +157,13 @@ class Processes:
         self.folder = folder
         self.started: list[Process] = []
 
-    def start(self, module: str, *args: str, name: str | None = None) -> Process:
+    def start(
+        self, module: str, *args: str, name: str | None = None, prefix: Sequence[str] = ()
+    ) -> Process:
+        """``prefix`` comes before the interpreter, e.g. ``ip netns exec NAME``."""
         name = name or f"{module}#{len(self.started)}"
         log = self.folder / f"{name.replace('/', '_')}.log"
-        process = Process(name, [sys.executable, "-m", module, *args], log)
+        process = Process(name, [*prefix, sys.executable, "-m", module, *args], log)
         self.started.append(process)
         return process
 

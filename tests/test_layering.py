@@ -1,4 +1,5 @@
-"""Dependencies point one way: ``protocol`` <- ``controller``, ``plant_sim`` <- ``sim``.
+"""Dependencies point one way: ``protocol`` <- ``controller``, ``plant_sim`` <- ``sim``;
+``protocol`` <- ``controller`` <- ``bridge``.
 
 ``controller`` and ``plant_sim`` never import each other, and ``protocol`` imports neither:
 read from every module's own import statements (``ast``), lazy imports included.
@@ -12,12 +13,13 @@ from pathlib import Path
 import pytest
 from support import ROOT
 
-PACKAGES = ("protocol", "controller", "plant_sim", "sim")
+PACKAGES = ("protocol", "controller", "plant_sim", "sim", "bridge")
 ALLOWED = {
     "protocol": {"protocol"},
     "controller": {"controller", "protocol"},
     "plant_sim": {"plant_sim", "protocol"},
     "sim": {"sim", "controller", "plant_sim", "protocol"},
+    "bridge": {"bridge", "controller", "protocol"},
 }
 
 

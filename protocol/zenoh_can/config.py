@@ -14,9 +14,11 @@ read them) turned into a :class:`zenoh.Config` by :func:`build_zenoh_config`.
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import json
 import re
+from pathlib import Path
 from typing import Any, Final
 
 import can
@@ -112,13 +114,19 @@ def _common(mode: str) -> dict[str, Any]:
     }
 
 
-def client_config(host: str, port: int) -> dict[str, Any]:
-    """A bus: client of the router at ``host:port``, listening on nothing."""
+def client_config(
+    host: str, port: int, user: str | None = None, password: str | None = None
+) -> dict[str, Any]:
+    """A bus (or a bridge, a monitor): client of the router at ``host:port``, listening on
+    nothing; ``user`` and ``password`` for a router that authenticates its clients."""
     host = check_host(host, allow_remote=True)  # a guard: never a wildcard or a group
-    return _common("client") | {
+    settings = _common("client") | {
         "listen/endpoints": [],
         "connect/endpoints": [endpoint(host, port)],
     }
+    if user is not None:
+        settings |= {"transport/auth/usrpwd/user": user, "transport/auth/usrpwd/password": password}
+    return settings
 
 
 def router_config(host: str, port: int, connect: list[str] | None = None) -> dict[str, Any]:
@@ -132,9 +140,12 @@ def router_config(host: str, port: int, connect: list[str] | None = None) -> dic
     }
 
 
-def build_zenoh_config(settings: dict[str, Any]) -> zenoh.Config:
-    """A :class:`zenoh.Config` with every setting inserted."""
-    config = zenoh.Config()
+def build_zenoh_config(settings: dict[str, Any], base: str | None = None) -> zenoh.Config:
+    """A :class:`zenoh.Config` with every setting inserted, over the JSON5 file ``base`` if
+    given (authentication and access control, ``config/zenoh/``): ours win."""
+    config = zenoh.Config.from_file(base) if base else zenoh.Config()
+    if base:
+        settings = _files_beside(config, Path(base).parent) | settings
     for path, value in settings.items():
         config.insert_json5(path, json.dumps(value))
     return config
@@ -150,6 +161,20 @@ def router_reachable(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> bool
         return bool(session.info.routers_zid())
     finally:
         close(session)
+
+
+AUTH_FILES = ("transport/auth/usrpwd/dictionary_file",)
+"""Settings that name a file: relative to the configuration file that holds them."""
+
+
+def _files_beside(config: zenoh.Config, folder: Path) -> dict[str, Any]:
+    found: dict[str, Any] = {}
+    for path in AUTH_FILES:
+        with contextlib.suppress(zenoh.ZError, ValueError):
+            value = json.loads(config.get_json(path))
+            if isinstance(value, str) and not Path(value).is_absolute():
+                found[path] = str(folder / value)
+    return found
 
 
 def close(session: Any) -> None:

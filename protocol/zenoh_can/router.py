@@ -39,13 +39,19 @@ class Router:
     """A Zenoh router session on ``host:port``; :meth:`close` ends it."""
 
     def __init__(
-        self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, *, allow_remote: bool = False
+        self,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        *,
+        allow_remote: bool = False,
+        config_file: str | None = None,
     ) -> None:
         self.host = check_host(host, allow_remote=allow_remote)
         self.port = check_port(port)
         self.endpoint = endpoint(self.host, self.port)
+        settings = router_config(self.host, self.port)
         try:
-            self.session = zenoh.open(build_zenoh_config(router_config(self.host, self.port)))
+            self.session = zenoh.open(build_zenoh_config(settings, config_file))
         except zenoh.ZError as error:
             raise can.CanInitializationError(
                 f"cannot listen on {self.endpoint}: {error} (is a router already running "
@@ -76,6 +82,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="accept a --host that is not a loopback address (to join other hosts on purpose)",
     )
+    parser.add_argument(
+        "--config",
+        metavar="JSON5",
+        help="a Zenoh configuration file under ours: authentication and access control, "
+        "e.g. config/zenoh/secure-router.json5 (listen, mode and scouting stay ours)",
+    )
     add_verbosity(parser)
     return parser
 
@@ -85,7 +97,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging(args.verbose)
     tune_process()
     try:
-        router = Router(args.host, args.port, allow_remote=args.allow_remote)
+        router = Router(
+            args.host, args.port, allow_remote=args.allow_remote, config_file=args.config
+        )
     except can.CanInitializationError as error:
         log.error("%s", error)
         return 2

@@ -19,6 +19,8 @@ COMMANDS = {
     "scara-busload": "protocol.busload.report",
     "controller": "controller.node",
     "plant_sim": "plant_sim.node",
+    "scara-bridge": "bridge.node",
+    "scara-monitor": "bridge.monitor",
 }
 
 pytestmark = pytest.mark.timeout(120)
@@ -66,6 +68,14 @@ def test_help_explains_the_command_and_offers_verbosity(command: str) -> None:
         ("plant_sim", ["no-such-scenario"], "scenario"),
         ("scara-run", ["no-such-scenario"], "scenario"),
         ("scara-sim", ["no-such-scenario"], "scenario"),
+        ("scara-bridge", ["--rate", "joints=fast"], "--rate"),
+        ("scara-bridge", ["--rate", "speed=10"], "--rate"),
+        ("scara-bridge", ["--robot", "arm/1"], "robot name"),
+        ("scara-bridge", ["--zenoh-host", "10.1.2.3"], "--zenoh-host"),
+        ("scara-bridge", ["--user", "operator"], "--password-file"),
+        ("scara-monitor", ["--count", "0"], "--count"),
+        ("scara-monitor", ["--zenoh-host", "10.1.2.3"], "--zenoh-host"),
+        ("scara-monitor", ["--task", "no-such-scenario"], "scenario"),
     ],
 )
 def test_a_bad_value_exits_2_naming_it(command: str, args: list[str], named: str) -> None:

@@ -1,0 +1,105 @@
+"""Commands as they arrive from Zenoh: checked before anything reaches the bus.
+
+A payload is JSON checked against its command's JSON Schema (``protocol/keys.py``): what does
+not fit is :class:`MalformedCommandError`, naming the field, and gets an error reply. A payload that
+fits but would make a task the controller must refuse (a waypoint out of reach or inside the
+obstacle, a path leaving the workspace) is :class:`RefusedError` with the same reason the
+controller would give. Pure: no bus, no Zenoh.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import jsonschema
+
+from controller.planner import check_plan
+from controller.service import reason_of
+from protocol.errors import ConfigError, ScaraError
+from protocol.keys import schema
+from protocol.scenario import Scenario, parse_task, task_document
+
+TASK_COMMANDS = ("waypoints", "obstacle", "mode")
+"""Commands that change the task (sent over ISO-TP); the others are NodeCommands."""
+
+
+class MalformedCommandError(ScaraError):
+    """The payload is not the command's JSON: ``field`` names where."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.message = message
+
+
+class RefusedError(Exception):
+    """A well-formed command the controller would refuse: ``reason`` as it would say it."""
+
+    def __init__(self, reason: str, field: str = "", message: str = "") -> None:
+        super().__init__(f"{reason}: {field}: {message}" if field else reason)
+        self.reason = reason
+        self.field = field
+        self.message = message
+
+    def reply(self) -> dict[str, Any]:
+        answer: dict[str, Any] = {"accepted": False, "reason": self.reason}
+        if self.field:
+            answer["field"] = self.field
+        if self.message:
+            answer["message"] = self.message
+        return answer
+
+
+def parse_payload(command: str, payload: bytes) -> dict[str, Any]:
+    """The command's JSON body (an empty payload is ``{}``), checked against its schema."""
+    if not payload.strip():
+        body: Any = {}
+    else:
+        try:
+            body = json.loads(payload.decode())
+        except (UnicodeDecodeError, json.JSONDecodeError) as error:
+            raise MalformedCommandError("payload", f"not UTF-8 JSON: {error}") from None
+    validator = jsonschema.Draft202012Validator(schema(f"cmd-{command}"))
+    worst = jsonschema.exceptions.best_match(validator.iter_errors(body))
+    if worst is not None:
+        raise MalformedCommandError(_field(worst.absolute_path) or "payload", worst.message)
+    result: dict[str, Any] = body
+    return result
+
+
+def edit_task(
+    command: str, body: dict[str, Any], current: Scenario | None, base: Scenario
+) -> Scenario:
+    """The task after ``command`` (one of :data:`TASK_COMMANDS`), checked with the rules the
+    controller applies; :class:`RefusedError` if it would refuse it."""
+    if current is None and command != "waypoints":
+        raise RefusedError("no_scenario", message="set the waypoints first")
+    document = (
+        task_document(current) if current is not None else {"name": "operator", "mode": "fuzzy"}
+    )
+    if command == "waypoints":
+        document["waypoints"] = body["waypoints"]
+    elif command == "obstacle":
+        document.pop("obstacle", None)
+        if body["obstacle"] is not None:
+            document["obstacle"] = body["obstacle"]
+    else:
+        document["mode"] = body["mode"]
+    try:
+        task = parse_task(document, base)
+        check_plan(task)
+    except ConfigError as error:
+        reason = reason_of(error).name.lower()
+        raise RefusedError(
+            reason, error.field, str(error).removeprefix(f"{error.field}: ")
+        ) from None
+    return task
+
+
+def _field(path: Any) -> str:
+    """``waypoints[1].x`` from a JSON Schema error's path."""
+    text = ""
+    for part in path:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text

@@ -1,0 +1,415 @@
+"""``scara-bridge``: the robot's state on Zenoh for remote monitors, and the paper's GUI buttons
+as remote commands.
+
+Two sides that never wait for each other:
+
+- the CAN side (this process's main thread) hears every frame (:class:`OperatorNode`), keeps
+  the robot's view, and hands what is to be published to a bounded queue: when that queue is
+  full the sample is dropped and counted, so a slow Zenoh side never stalls the CAN side;
+- the Zenoh side (a publisher thread, and Zenoh's own threads for queries) publishes under
+  ``scara/<robot>/`` (``protocol/keys.py``), answers a query on each state key with its
+  latest value (a monitor that joins late sees the arm at once), holds a liveliness token per
+  live process, and takes commands as queries on ``cmd/...``: checked (``bridge/commands.py``),
+  forwarded over CAN, answered with the controller's own answer.
+
+Joint state and TCP go out as they arrive, at most at their configured rate (100 Hz by
+default, so a sample is never older than the frame it comes from); the other keys on change.
+Access control is the Zenoh router's (``config/zenoh/secure-router.json5``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import queue
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from types import FrameType
+from typing import Any
+
+import can
+import zenoh
+
+from bridge.commands import (
+    TASK_COMMANDS,
+    MalformedCommandError,
+    RefusedError,
+    edit_task,
+    parse_payload,
+)
+from bridge.operator import Answer, OperatorNode
+from bridge.session import add_zenoh_arguments, endpoint_from_args
+from bridge.view import Event
+from controller.planner import load_planned
+from protocol.bus import add_bus_arguments, open_bus_from_args
+from protocol.cli import add_verbosity, configure_logging, number
+from protocol.errors import ScaraError
+from protocol.keys import (
+    COMMANDS,
+    STATE_KEYS,
+    alive_key,
+    check_robot,
+    command_key,
+    state_key,
+)
+from protocol.messages import Request
+from protocol.scenario import Scenario, task_document
+from protocol.zenoh_can.config import (
+    close,
+)
+
+QUEUE_SIZE = 256
+"""Samples waiting for the Zenoh side before new ones are dropped."""
+DEFAULT_RATES = {"joints": 100.0, "tcp": 100.0}
+"""Hz at most per key; keys not named here go out on every change."""
+STATUS_PERIOD = 0.1
+"""s between two looks at whether the status changed (the nodes' status rate)."""
+STEP = 0.005
+"""s the CAN side waits for a frame before it looks at its timers again."""
+
+
+class Bridge:
+    """Both sides of the bridge around an :class:`OperatorNode` and a Zenoh session."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        session: zenoh.Session,
+        robot: str,
+        base: Scenario,
+        rates: dict[str, float],
+    ) -> None:
+        self.robot = robot
+        self.base = base
+        self.session = session
+        self.rates = rates
+        self.running = True
+        self.node = OperatorNode(bus, base, self._on_event, self._on_joint_state)
+        self.log = self.node.log
+        self._outbox: queue.Queue[tuple[str, Any]] = queue.Queue(QUEUE_SIZE)
+        self._commands: queue.SimpleQueue[tuple[str, Any, zenoh.Query]] = queue.SimpleQueue()
+        self.published = dict.fromkeys(STATE_KEYS, 0)
+        self.dropped = dict.fromkeys(STATE_KEYS, 0)
+        self._seq = dict.fromkeys(STATE_KEYS, 0)
+        self._due = dict.fromkeys(STATE_KEYS, -float("inf"))
+        self._last_payload: dict[str, dict[str, Any]] = {}
+        self._latest: dict[str, bytes] = {}
+        self._latest_lock = threading.Lock()
+        self._alive: dict[str, Any] = {}
+        """Liveliness tokens, owned by the publishing thread."""
+        self._heard: set[str] = set()
+        """The nodes whose tokens are (or are queued to be) declared: the CAN thread's."""
+        self._task_published: Scenario | None = None
+        self._publishers = {
+            name: session.declare_publisher(
+                state_key(robot, name),
+                congestion_control=zenoh.CongestionControl.DROP,
+                express=True,
+            )
+            for name in STATE_KEYS
+        }
+        self._queryables = [
+            session.declare_queryable(state_key(robot, name), self._latest_reply(name))
+            for name in STATE_KEYS
+        ] + [
+            session.declare_queryable(command_key(robot, name), self._command_query(name))
+            for name in COMMANDS
+        ]
+        self._alive["bridge"] = session.liveliness().declare_token(alive_key(robot, "bridge"))
+        self._publisher = threading.Thread(target=self._publish_loop, name="publish", daemon=True)
+        self._publisher.start()
+
+    # --- the CAN side ----------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Serve until stopped: frames, commands, timers."""
+        next_status = time.monotonic()
+        while self.running:
+            self.node.step(STEP)
+            self._run_commands()
+            now = time.monotonic()
+            if now >= next_status:
+                next_status = now + STATUS_PERIOD
+                self._offer("status", self.node.view.status_payload(time.time(), self._counters()))
+                self._offer_task()
+                self._watch_alive()
+
+    def _on_joint_state(self, received: float) -> None:
+        view = self.node.view
+        for name, payload in (
+            ("joints", view.joints_payload()),
+            ("tcp", view.tcp_payload()),
+            ("coordination", view.coordination_payload()),
+        ):
+            if payload is not None:
+                self._offer(name, payload)
+
+    def _on_event(self, event: Event, received: float) -> None:
+        name, detail = event
+        self.log.info("event %s %s", name, detail)
+        self._offer("events", {"t": received, "event": name, "detail": detail})
+
+    def _offer_task(self) -> None:
+        task = self.node.task
+        if task is not None and task is not self._task_published:
+            self._task_published = task
+            self._offer("scenario", task_document(task))
+
+    def _offer(self, name: str, payload: dict[str, Any]) -> None:
+        """Queue ``payload`` for ``name`` if its rate allows and it changed (or drop it)."""
+        now = time.monotonic()
+        rate = self.rates.get(name, 0.0)
+        if rate:
+            if now < self._due[name]:
+                return
+            # on a grid of 1/rate, so the mean rate is the rate even when the frames behind
+            # the samples come at a rate that is not a multiple of it
+            period = 1.0 / rate
+            late = now - self._due[name] >= period
+            self._due[name] = now + period if late else self._due[name] + period
+        else:
+            content = {k: v for k, v in payload.items() if k != "t"}
+            if name != "events" and self._last_payload.get(name) == content:
+                return
+            self._last_payload[name] = content
+        if name != "scenario":
+            payload = payload | {"seq": self._seq[name]}
+        try:
+            self._outbox.put_nowait((name, payload))
+        except queue.Full:
+            self.dropped[name] += 1
+            return
+        self._seq[name] += 1
+
+    def _counters(self) -> dict[str, Any]:
+        return {
+            "frames": self.node.frames,
+            "bad_frames": self.node.monitor.counts.bad,
+            "published": dict(self.published),
+            "dropped": dict(self.dropped),
+            "rates_hz": dict(self.rates),
+        }
+
+    def _watch_alive(self) -> None:
+        """A liveliness token per node while its status frames keep coming."""
+        view = self.node.view
+        wall = time.time()
+        for process, seen in (("controller", view.controller), ("plant", view.plant)):
+            alive = seen.alive(wall)
+            if alive == (process in self._heard):
+                continue
+            if not self._outbox_control(("alive", (process, alive))):
+                continue  # the next look at the nodes tries again
+            if alive:
+                self._heard.add(process)
+                if process == "controller":  # just heard (or back): ask for the task it holds
+                    self.node.request(Request.DESCRIBE, lambda answer: None)
+            else:
+                self._heard.discard(process)
+
+    def _outbox_control(self, item: tuple[str, Any]) -> bool:
+        try:
+            self._outbox.put_nowait(item)
+        except queue.Full:
+            return False
+        return True
+
+    # --- commands ----------------------------------------------------------------------------
+
+    def _command_query(self, command: str) -> Any:
+        def on_query(query: zenoh.Query) -> None:
+            """Zenoh thread: check the command, then leave it to the CAN side."""
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            try:
+                body = parse_payload(command, payload)
+                work: Any = body
+                if command in TASK_COMMANDS:
+                    state = self.node.view.controller.state
+                    if state in ("running", "hold"):
+                        raise RefusedError("busy", message="the controller is running a task")
+                    work = edit_task(command, body, self.node.task, self.base)
+            except MalformedCommandError as error:
+                error_reply = {"error": "malformed", "field": error.field, "message": error.message}
+                query.reply_err(json.dumps(error_reply).encode())
+                _drop(query)
+                return
+            except RefusedError as refusal:
+                query.reply(query.key_expr, json.dumps(refusal.reply()).encode())
+                _drop(query)
+                return
+            self._commands.put((command, work, query))
+
+        return on_query
+
+    def _run_commands(self) -> None:
+        """CAN side: forward the checked commands; each query is answered when the
+        controller answers (or does not, in time)."""
+        while True:
+            try:
+                command, work, query = self._commands.get_nowait()
+            except queue.Empty:
+                return
+            reply = _replier(query)
+            if command in TASK_COMMANDS:
+                self.node.set_task(work, reply)
+            elif command == "estop":
+                self.node.estop()
+                reply(Answer(True, "none"))
+            else:
+                self.node.request(Request[command.upper()], reply)
+
+    # --- the Zenoh side ----------------------------------------------------------------------
+
+    def _publish_loop(self) -> None:
+        while self.running:
+            try:
+                name, payload = self._outbox.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if name == "alive":
+                self._set_alive(*payload)
+                continue
+            data = json.dumps(payload).encode()
+            with self._latest_lock:
+                self._latest[name] = data
+            try:
+                self._publishers[name].put(data)
+                self.published[name] += 1
+            except zenoh.ZError as error:
+                self.dropped[name] += 1
+                self.log.warning("%s not published: %s", name, error)
+
+    def _set_alive(self, process: str, alive: bool) -> None:
+        if alive:
+            self._alive[process] = self.session.liveliness().declare_token(
+                alive_key(self.robot, process)
+            )
+        else:
+            self._alive.pop(process).undeclare()
+
+    def _latest_reply(self, name: str) -> Any:
+        def on_query(query: zenoh.Query) -> None:
+            """Zenoh thread: the latest value of the key, if there is one yet."""
+            with self._latest_lock:
+                data = self._latest.get(name)
+            if data is not None:
+                query.reply(query.key_expr, data)
+            _drop(query)
+
+        return on_query
+
+    def close(self) -> None:
+        self.running = False
+        self._publisher.join(2.0)
+        for token in self._alive.values():
+            token.undeclare()
+        entities: list[Any] = [*self._queryables, *self._publishers.values()]
+        for entity in entities:
+            entity.undeclare()
+
+
+def _drop(query: Any) -> None:
+    """Finish a query (its replies are complete); zenoh's stub leaves ``drop`` unannotated."""
+    query.drop()
+
+
+def _replier(query: zenoh.Query) -> Any:
+    def reply(answer: Answer) -> None:
+        body: dict[str, Any] = {"accepted": answer.accepted, "reason": answer.reason}
+        query.reply(query.key_expr, json.dumps(body).encode())
+        _drop(query)
+
+    return reply
+
+
+# --- the process ---------------------------------------------------------------------------
+
+
+NICENESS = 5
+"""The bridge runs at a lower priority than the nodes: on a 2-core machine it must not take
+the controller's core when both wake (measured in ``benchmarks/bench_bridge.py``)."""
+
+
+def yield_to_the_loop() -> None:
+    """Lower this process's priority (no precise wake-ups: the bridge is not real time)."""
+    with contextlib.suppress(OSError):
+        os.nice(NICENESS)
+
+
+def parse_rate(text: str) -> tuple[str, float]:
+    """``KEY=HZ`` for ``--rate``."""
+    key, separator, value = text.partition("=")
+    if not separator or key not in STATE_KEYS:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: use KEY=HZ with KEY one of {', '.join(STATE_KEYS)}"
+        )
+    return key, number(0.0, 1000.0)(value)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="scara-bridge",
+        description="Publish the robot's state on Zenoh under scara/<robot>/ and take the "
+        "operator's commands as Zenoh queries on scara/<robot>/cmd/...",
+    )
+    parser.add_argument(
+        "scenario",
+        nargs="?",
+        help="scenario file or name for the robot's parameters (default: the packaged ones)",
+    )
+    parser.add_argument(
+        "--rate",
+        action="append",
+        type=parse_rate,
+        default=[],
+        metavar="KEY=HZ",
+        help="most samples per second of a key (default joints=100, tcp=100; 0: every change)",
+    )
+    add_zenoh_arguments(parser)
+    add_bus_arguments(parser)
+    add_verbosity(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    configure_logging(args.verbose)
+    yield_to_the_loop()
+    try:
+        robot = check_robot(args.robot)
+        base = load_planned(args.scenario) if args.scenario else Scenario("bridge", (), None)
+        endpoint = endpoint_from_args(args)
+        bus = open_bus_from_args(args)
+    except (ScaraError, can.CanError, ValueError, OSError) as error:
+        print(f"scara-bridge: {error}", file=sys.stderr)
+        return 2
+    try:
+        session = endpoint.open()
+    except zenoh.ZError as error:
+        bus.shutdown()
+        print(f"scara-bridge: no Zenoh session at {endpoint}: {error}", file=sys.stderr)
+        return 2
+    bridge = Bridge(bus, session, robot, base, DEFAULT_RATES | dict(args.rate))
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        bridge.running = False
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    print(f"scara-bridge: {robot} on scara/{robot}/ (Ctrl-C to stop)", file=sys.stderr, flush=True)
+    try:
+        bridge.run()
+    finally:
+        bridge.close()
+        close(session)
+        bus.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

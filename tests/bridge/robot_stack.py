@@ -1,0 +1,134 @@
+"""The robot as a service for the bridge's tests: router, plant, controller (service mode)
+and bridge as real processes on CAN-over-Zenoh through the test's router on 127.0.0.1.
+
+- :class:`Stack` holds them; :func:`start_router` starts a router and waits for it.
+- :func:`open_client` opens a plain Zenoh client session written here from Zenoh's own
+  configuration keys (no project code): multicast scouting off, one explicit
+  ``tcp/127.0.0.1`` endpoint. :func:`latest` and :func:`command` query through one.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from support import Process, Processes, free_port, wait_until
+
+from protocol.zenoh_can.config import router_reachable
+
+ROBOT = "arm1"
+START = 30.0
+"""s the stack may take to come up on a loaded 2-core machine (imports, joins)."""
+REPO = Path(__file__).resolve().parents[2]
+SECURE_CONFIG = REPO / "config" / "zenoh" / "secure-router.json5"
+PASSWORDS = dict(
+    line.split(":", 1)
+    for line in (REPO / "config" / "zenoh" / "credentials.txt").read_text().split()
+)
+
+
+def open_client(port: int, user: str | None = None, password: str | None = None) -> zenoh.Session:
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    config.insert_json5("listen/endpoints", "[]")
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "false")
+    if user is not None:
+        config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+    return zenoh.open(config)
+
+
+def latest(session: zenoh.Session, key: str, timeout: float = 2.0) -> dict[str, Any] | None:
+    """The latest value of a state key from the bridge's queryable (None if no answer)."""
+    for reply in session.get(key, timeout=timeout):
+        if reply.ok is not None:
+            loaded: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+            return loaded
+    return None
+
+
+def command(
+    session: zenoh.Session, name: str, body: Any = None, timeout: float = 5.0
+) -> tuple[bool, dict[str, Any]]:
+    """Send a command; ``(ok, reply)``: ok is False for an error reply (malformed)."""
+    payload = None if body is None else json.dumps(body)
+    replies = list(session.get(f"scara/{ROBOT}/cmd/{name}", payload=payload, timeout=timeout))
+    assert len(replies) == 1, f"{name}: {len(replies)} replies"
+    reply = replies[0]
+    if reply.ok is not None:
+        return True, json.loads(reply.ok.payload.to_bytes())
+    return False, json.loads(reply.err.payload.to_bytes())
+
+
+@dataclass
+class Stack:
+    processes: Processes
+    can_port: int
+    zenoh_port: int
+    """The port where the robot's keys live (the CAN router's, or the secure router's)."""
+    bridge_args: list[str]
+    plant: Process | None = None
+    controller: Process | None = None
+    bridge: Process | None = None
+
+    @property
+    def bus(self) -> list[str]:
+        return [
+            "--interface", "zenoh", "--channel", f"robot{self.can_port}",
+            "--bus-option", f"port={self.can_port}",
+        ]  # fmt: skip
+
+    def start_bridge(self, *extra: str) -> Process:
+        self.bridge = self.processes.start(
+            "bridge.node",
+            "--zenoh-port", str(self.zenoh_port), *self.bridge_args, *self.bus, *extra,
+            name=f"bridge#{len(self.processes.started)}",
+        )  # fmt: skip
+        return self.bridge
+
+    def wait_ready(self, session: zenoh.Session) -> dict[str, Any]:
+        """The bridge's status once it hears both nodes ready (the first one that does)."""
+        found: dict[str, Any] = {}
+
+        def ready() -> bool:
+            for process in (self.plant, self.controller, self.bridge):
+                assert process is None or process.poll() is None, self.processes.outputs()
+            status = latest(session, f"scara/{ROBOT}/status", timeout=1.0)
+            if status is None:
+                return False
+            found.update(status)
+            return bool(
+                status["controller"]["alive"]
+                and status["plant"]["alive"]
+                and status["controller"]["state"] == "ready"
+            )
+
+        wait_until(ready, START, "the bridge to hear a ready controller and plant")
+        return found
+
+
+def start_router(processes: Processes, *args: str, name: str, user: str | None = None) -> int:
+    """Start a router on a free port; wait until it answers (as ``user``, if it needs one)."""
+    port = free_port()
+    router = processes.start("protocol.zenoh_can.router", "--port", str(port), *args, name=name)
+
+    def answers() -> bool:
+        if user is None:
+            return router_reachable("127.0.0.1", port)
+        try:
+            session = open_client(port, user, PASSWORDS[user])
+        except zenoh.ZError:
+            return False
+        try:
+            return bool(session.info.routers_zid())
+        finally:
+            session.close()  # type: ignore[no-untyped-call]
+
+    wait_until(lambda: router.poll() is not None or answers(), START, f"{name} to answer")
+    assert router.poll() is None, router.output()
+    return port

@@ -1,0 +1,291 @@
+"""The bridge with the plant and the controller as real processes, real Zenoh on 127.0.0.1.
+
+The subscriber of the first test is written here from Zenoh and the schema files only (no
+project code): what a monitor in any language would do.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import pytest
+import zenoh
+from robot_stack import PASSWORDS, ROBOT, Stack, command, latest, open_client
+from support import wait_until
+
+SCHEMAS = Path(__file__).resolve().parents[2] / "protocol" / "schemas"
+STATE_KEYS = ("joints", "tcp", "coordination", "status", "events", "scenario")
+RUN_TIME = 40.0
+"""s a reference run may take from `run` to its end on a loaded machine (6.5 s unloaded)."""
+
+REFERENCE = {
+    "waypoints": [
+        {"t": 0.0, "x": 0.30, "y": -0.25, "z": 0.25},
+        {"t": 1.5, "x": 0.45, "y": -0.15, "z": 0.22},
+        {"t": 4.0, "x": 0.43, "y": 0.20, "z": 0.22},
+        {"t": 5.5, "x": 0.25, "y": 0.32, "z": 0.26},
+    ],
+    "obstacle": {
+        "x": 0.455, "y": -0.01, "long_diameter": 0.10, "short_diameter": 0.06,
+        "height": 0.30, "yaw_deg": 30.0, "tool_radius": 0.01, "margin": 0.01,
+    },
+}  # fmt: skip
+
+
+def load_schema(name: str) -> dict[str, Any]:
+    loaded: dict[str, Any] = json.loads((SCHEMAS / f"{name}.schema.json").read_text())
+    return loaded
+
+
+class Recorder:
+    """Every sample of the state keys: (key, receive time, payload).
+
+    One subscriber per key, as a monitor on the secure router must: its rules name the keys
+    a reader may subscribe to, and ``scara/<robot>/**`` (which covers ``cmd/**``) is not one.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.samples: list[tuple[str, float, dict[str, Any]]] = []
+        self._lock = threading.Lock()
+        self._subscribers = [
+            session.declare_subscriber(f"scara/{ROBOT}/{name}", self._on_sample)
+            for name in STATE_KEYS
+        ]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr).removeprefix(f"scara/{ROBOT}/")
+        payload = json.loads(sample.payload.to_bytes())
+        with self._lock:
+            self.samples.append((name, time.time(), payload))
+
+    def of(self, name: str) -> list[tuple[float, dict[str, Any]]]:
+        with self._lock:
+            return [(received, payload) for key, received, payload in self.samples if key == name]
+
+    def events(self) -> list[dict[str, Any]]:
+        return [payload for _, payload in self.of("events")]
+
+    def event(self, name: str) -> dict[str, Any] | None:
+        return next((e for e in self.events() if e["event"] == name), None)
+
+
+def set_reference_task(operator: zenoh.Session, mode: str = "fuzzy") -> None:
+    for name, body in (
+        ("waypoints", {"waypoints": REFERENCE["waypoints"]}),
+        ("obstacle", {"obstacle": REFERENCE["obstacle"]}),
+        ("mode", {"mode": mode}),
+    ):
+        ok, reply = command(operator, name, body)
+        assert ok and reply == {"accepted": True, "reason": "none"}, (name, reply)
+
+    def described() -> bool:  # the controller describes its task back within a status period
+        scenario = latest(operator, f"scara/{ROBOT}/scenario", timeout=1.0)
+        return scenario is not None and scenario["mode"] == mode
+
+    wait_until(described, 5.0, "the controller to describe the task it holds")
+
+
+def inside_obstacle(x: float, y: float) -> bool:
+    obstacle = REFERENCE["obstacle"]
+    yaw = math.radians(obstacle["yaw_deg"])
+    dx, dy = x - obstacle["x"], y - obstacle["y"]
+    u = dx * math.cos(yaw) + dy * math.sin(yaw)
+    v = -dx * math.sin(yaw) + dy * math.cos(yaw)
+    return (u / (obstacle["long_diameter"] / 2)) ** 2 + (
+        v / (obstacle["short_diameter"] / 2)
+    ) ** 2 <= 1
+
+
+def test_every_key_arrives_at_its_rate_and_fits_its_schema_and_a_late_joiner_sees_the_arm(
+    stack: Stack, client: Any
+) -> None:
+    subscriber = client(stack.zenoh_port)
+    recorder = Recorder(subscriber)
+    stack.wait_ready(subscriber)
+    set_reference_task(subscriber)
+    ok, reply = command(subscriber, "run")
+    assert ok and reply["accepted"], reply
+    wait_until(lambda: recorder.event("run_finished") is not None, RUN_TIME, "the run to finish")
+
+    for name in STATE_KEYS:
+        samples = recorder.of(name)
+        assert samples, f"nothing on {name}"
+        validator = jsonschema.Draft202012Validator(load_schema(name))
+        for _, payload in samples:
+            validator.validate(payload)
+        if name != "scenario":
+            sequence = [payload["seq"] for _, payload in samples]
+            assert sequence == list(range(sequence[0], sequence[0] + len(sequence))), name
+    started = recorder.event("run_started")
+    finished = recorder.event("run_finished")
+    assert started is not None and finished is not None
+    for name in ("joints", "tcp"):  # 100 Hz by default, while the plant sends at 500 Hz
+        times = [
+            p["t"]
+            for _, p in recorder.of(name)
+            if started["t"] + 0.5 < p["t"] < finished["t"] - 0.5
+        ]
+        rate = (len(times) - 1) / (times[-1] - times[0])
+        assert 90.0 <= rate <= 101.0, f"{name} at {rate:.1f} Hz"
+    status = recorder.of("status")[-1][1]
+    assert status["bridge"]["dropped"] == dict.fromkeys(STATE_KEYS, 0)
+    assert status["bridge"]["bad_frames"] == 0
+
+    late = client(stack.zenoh_port)
+    for name in ("joints", "tcp", "coordination", "status", "scenario"):
+        payload = latest(late, f"scara/{ROBOT}/{name}")
+        assert payload is not None, f"no latest {name}"
+        jsonschema.validate(payload, load_schema(name))
+    scenario = latest(late, f"scara/{ROBOT}/scenario")
+    assert scenario is not None and scenario["waypoints"] == REFERENCE["waypoints"]
+    alive = {str(reply.ok.key_expr) for reply in late.liveliness().get(f"scara/{ROBOT}/alive/*")}
+    assert alive == {f"scara/{ROBOT}/alive/{p}" for p in ("bridge", "controller", "plant")}
+
+
+def test_an_authorised_operator_runs_the_arm_around_the_obstacle_and_others_cannot(
+    make_stack: Any, client: Any
+) -> None:
+    stack = make_stack(secure=True)
+    operator = client(stack.zenoh_port, "operator", PASSWORDS["operator"])
+    recorder = Recorder(operator)
+    stack.wait_ready(operator)
+    monitor = client(stack.zenoh_port, "monitor", PASSWORDS["monitor"])
+
+    for name, body in (("waypoints", {"waypoints": REFERENCE["waypoints"]}), ("run", None)):
+        replies = list(
+            monitor.get(f"scara/{ROBOT}/cmd/{name}", payload=json.dumps(body), timeout=2.0)
+        )
+        assert replies == [], f"the monitor's {name} got an answer"
+    assert latest(monitor, f"scara/{ROBOT}/status") is not None  # but it may read the state
+    for user, password in (("operator", "wrong"), ("nobody", "x"), (None, None)):
+        with pytest.raises(zenoh.ZError):
+            open_client(stack.zenoh_port, user, password)
+    assert latest(operator, f"scara/{ROBOT}/scenario", timeout=1.0) is None  # nothing set
+
+    set_reference_task(operator)
+    ok, reply = command(operator, "run")
+    assert ok and reply == {"accepted": True, "reason": "none"}
+    wait_until(lambda: recorder.event("run_started") is not None, 10.0, "the run to start")
+    ok, busy = command(operator, "mode", {"mode": "conventional"})
+    assert ok and busy["accepted"] is False and busy["reason"] == "busy"
+    wait_until(lambda: recorder.event("run_finished") is not None, RUN_TIME, "the run to finish")
+
+    names = [e["event"] for e in recorder.events()]
+    waypoint_events = [
+        e["detail"]["index"] for e in recorder.events() if e["event"] == "waypoint_reached"
+    ]
+    assert names[0] == "run_started" and names[-1] == "run_finished", names
+    assert waypoint_events == [0, 1, 2, 3]
+    assert "collision" not in names
+    path = [(p["x"], p["y"]) for _, p in recorder.of("tcp")]
+    assert len(path) > 300
+    assert not any(inside_obstacle(x, y) for x, y in path)
+    assert max(y for _, y in path) > 0.3  # it went on to the last waypoint
+    coordination = [p for _, p in recorder.of("coordination")]
+    assert any(p["k_c"] > 0.5 for p in coordination), "the avoidance never took over"
+    final: dict[str, Any] = {}
+
+    def controller_ready() -> bool:  # its status frame follows the run's end within 0.1 s
+        final.update(latest(operator, f"scara/{ROBOT}/status") or {})
+        return bool(final) and final["controller"]["state"] == "ready"
+
+    wait_until(controller_ready, 2.0, "the controller to report ready")
+    assert final["controller"]["waypoints_reached"] == 4 and final["controller"]["progress"] == 100
+
+
+@pytest.mark.parametrize(
+    ("name", "payload", "field"),
+    [
+        ("waypoints", "not json", "payload"),
+        (
+            "waypoints",
+            json.dumps({"waypoints": [{"t": 0, "x": 0.3, "y": 0.1, "z": 0.2}]}),
+            "waypoints",
+        ),
+        ("obstacle", json.dumps({"obstacle": {"x": 0.4, "y": 0.0}}), "obstacle"),
+        ("mode", json.dumps({"mode": "turbo"}), "mode"),
+        ("run", json.dumps({"speed": 2}), "payload"),
+    ],
+)
+def test_a_malformed_command_gets_an_error_naming_the_field_and_changes_nothing(
+    stack: Stack, client: Any, name: str, payload: str, field: str
+) -> None:
+    operator = client(stack.zenoh_port)
+    stack.wait_ready(operator)
+    set_reference_task(operator)
+    before = latest(operator, f"scara/{ROBOT}/scenario")
+    replies = list(operator.get(f"scara/{ROBOT}/cmd/{name}", payload=payload, timeout=5.0))
+    assert len(replies) == 1 and replies[0].err is not None
+    error = json.loads(replies[0].err.payload.to_bytes())
+    jsonschema.validate(error, load_schema("error"))
+    assert error["field"] == field, error
+    time.sleep(0.3)  # a change would show in the controller's next status and described task
+    assert latest(operator, f"scara/{ROBOT}/scenario") == before
+    status = latest(operator, f"scara/{ROBOT}/status")
+    assert status is not None and status["controller"]["state"] == "ready"
+
+
+def test_out_of_range_commands_are_refused_with_the_reason_and_change_nothing(
+    stack: Stack, client: Any
+) -> None:
+    operator = client(stack.zenoh_port)
+    stack.wait_ready(operator)
+    set_reference_task(operator)
+    before = latest(operator, f"scara/{ROBOT}/scenario")
+    far = [dict(w) for w in REFERENCE["waypoints"]]
+    far[2]["x"] = 1.5
+    in_obstacle = [dict(w) for w in REFERENCE["waypoints"]]
+    in_obstacle[1].update(x=0.455, y=-0.01)
+    for body, reason, field in (
+        ({"waypoints": far}, "unreachable", "waypoints[2]"),
+        ({"waypoints": in_obstacle}, "inside_obstacle", "waypoints[1]"),
+    ):
+        ok, reply = command(operator, "waypoints", body)
+        assert ok, reply
+        jsonschema.validate(reply, load_schema("reply"))
+        assert (reply["accepted"], reply["reason"], reply["field"]) == (False, reason, field)
+    assert latest(operator, f"scara/{ROBOT}/scenario") == before
+
+
+def test_a_run_completes_when_the_bridge_is_killed_and_a_new_bridge_picks_up_the_state(
+    stack: Stack, client: Any
+) -> None:
+    operator = client(stack.zenoh_port)
+    recorder = Recorder(operator)
+    stack.wait_ready(operator)
+    set_reference_task(operator)
+    ok, reply = command(operator, "run")
+    assert ok and reply["accepted"]
+    wait_until(lambda: recorder.event("run_started") is not None, 10.0, "the run to start")
+    assert stack.bridge is not None
+    stack.bridge.signal(signal.SIGKILL)
+    stack.bridge.wait(5.0)
+    wait_until(
+        lambda: not list(operator.liveliness().get(f"scara/{ROBOT}/alive/bridge", timeout=1.0)),
+        10.0,
+        "the dead bridge's liveliness token to go",
+    )
+    time.sleep(8.0)  # the run (5.5 s + settling) goes on without anyone watching
+
+    stack.start_bridge()
+    status = stack.wait_ready(operator)
+    assert (
+        status["controller"]["progress"] == 100 and status["controller"]["waypoints_reached"] == 4
+    )
+    assert status["controller"]["faults"] == []
+    wait_until(
+        lambda: latest(operator, f"scara/{ROBOT}/scenario", timeout=1.0) is not None,
+        10.0,
+        "the new bridge to learn the task from the controller",
+    )
+    scenario = latest(operator, f"scara/{ROBOT}/scenario")
+    assert scenario is not None and scenario["waypoints"] == REFERENCE["waypoints"]
+    ok, reply = command(operator, "run")  # and it commands as the first one did
+    assert ok and reply == {"accepted": True, "reason": "none"}
