@@ -1,6 +1,10 @@
 """``scara-run``: start the plant and the controller as separate OS processes on one CAN
 transport, run a scenario, stop both cleanly (Ctrl-C too) and print the report.
 
+With ``--serve`` it runs nothing itself: the controller is a service holding the scenario as
+its task, and ``scara-bridge`` publishes the robot on Zenoh and takes the commands, until
+Ctrl-C.
+
 On the CAN-over-Zenoh transport it first makes sure a router runs on the transport's port:
 if none answers it starts ``scara-router`` and stops it at the end, so the router outlives
 either node (one may be restarted mid-run, and other tools may join) but not the launcher.
@@ -67,6 +71,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="give up after this many seconds (default %(default)g)",
     )
+    parser.add_argument(
+        "--serve",
+        action="store_true",
+        help="start the controller as a service and scara-bridge (keys on the CAN router), "
+        "then wait for commands on Zenoh until Ctrl-C",
+    )
     add_comms_timeout_argument(parser, default=None)
     add_timing_arguments(parser)
     add_bus_arguments(parser)
@@ -93,6 +103,8 @@ def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str],
         common += ["--plain-scheduling"]
     plant = [sys.executable, "-m", "plant_sim.node", *common]
     controller = [sys.executable, "-m", "controller.node", *common]
+    if args.serve:
+        return plant, [*controller, "--service"]
     wall_time = args.timeout
     if args.clock == ClockMode.REALTIME.value:
         wall_time = min(wall_time, 2.0 * duration + REALTIME_SLACK)
@@ -105,6 +117,38 @@ def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str],
         plant += ["--inject-faults", f"{args.inject_faults},seed=2"]
         controller += ["--inject-faults", f"{args.inject_faults},seed=1"]
     return plant, controller
+
+
+def bridge_command(args: argparse.Namespace) -> list[str]:
+    """``scara-bridge`` on the same transport, its keys on the CAN router."""
+    interface, channel = resolve_transport(args.interface, args.channel)
+    options = parse_options(args.bus_option)
+    command = [sys.executable, "-m", "bridge.node", args.scenario, "--interface", interface]
+    command += ["--channel", channel, "--zenoh-host", str(options.get("host", DEFAULT_HOST))]
+    command += ["--zenoh-port", str(options.get("port", DEFAULT_PORT))]
+    for option in args.bus_option:
+        command += ["--bus-option", option]
+    if options.get("allow_remote"):
+        command.append("--allow-remote")
+    return command + ["-v"] * args.verbose
+
+
+def serve(processes: list[subprocess.Popen[bytes]]) -> int:
+    """Wait until Ctrl-C (0) or until one of ``processes`` ends by itself (1)."""
+    print(
+        "scara-run: serving; command it with scara-monitor (same --zenoh-port as the bus), "
+        "Ctrl-C to stop",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        while all(process.poll() is None for process in processes):
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        return 0
+    ended = [process.args for process in processes if process.poll() is not None]
+    print(f"scara-run: a process ended on its own: {ended}", file=sys.stderr)
+    return 1
 
 
 def router_command(args: argparse.Namespace) -> list[str] | None:
@@ -180,6 +224,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print("scara-run: the Zenoh router did not come up", file=sys.stderr)
                 return 1
         processes += [subprocess.Popen(command) for command in order]
+        if args.serve:
+            processes.append(subprocess.Popen(bridge_command(args)))
+            return serve(processes)
         controller = processes[0] if args.controller_first else processes[1]
         started = time.monotonic()
         with tqdm(
