@@ -324,7 +324,8 @@ class ControllerNode(Node):
         """Work of a tick beside control, after the frames were taken (the service's)."""
 
     def on_run_complete(self) -> None:
-        """The run reached its end (the service goes back to idle)."""
+        """The run reached its end: idle again (the next status frame says so)."""
+        self.node_state = NodeState.READY
 
     # --- real time -----------------------------------------------------------------------------
 
@@ -336,6 +337,7 @@ class ControllerNode(Node):
         """
         start = self.clock()
         deadline = start
+        self.send_status_if_due(start)  # ready: the run starts with the first joint state
         while self.running and not self.done:
             if max_wall_time is not None and self.clock() - start > max_wall_time:
                 self.log.warning("gave up after %g s (--max-wall-time)", max_wall_time)
@@ -423,6 +425,7 @@ class ControllerNode(Node):
         received meanwhile also ends the run (zero sent).
         """
         started = self.clock()
+        self.send_status_if_due(started)  # ready, until the plant answers
         state = self._exchange(0, None, give_up=started + startup_timeout)
         if state is None:
             return
@@ -444,6 +447,9 @@ class ControllerNode(Node):
                 return
             state = answer
             self.stats.ticks += 1
+        if self.finished:
+            self.on_run_complete()
+            self.send_status_if_due(self.clock())
 
     def _exchange(self, tick: int, rates: Joints | None, give_up: float) -> JointState | None:
         """Send the command ``rates`` and a StepSync(tick) naming it, together, and wait for

@@ -15,6 +15,7 @@ message naming it, before anything is sent.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
 import signal
@@ -75,6 +76,7 @@ class Node:
         self.isotp: IsoTpLink | None = None
         """An ISO-TP link whose receive ID this node's reader hands over (see ``handle``)."""
         self._next_status = -float("inf")
+        self._reported: tuple[Any, Any] | None = None
 
     # --- frames in ----------------------------------------------------------------------
 
@@ -170,8 +172,11 @@ class Node:
             self.log.warning("send failed: %s", error)
 
     def send_status_if_due(self, now: float) -> None:
-        """The status frames, together, once per the status frame's DBC cycle time."""
-        if now >= self._next_status:
+        """The status frames, together, once per the status frame's DBC cycle time, and at
+        once when the node's state or faults change (so a listener sees every transition)."""
+        reported = (self.node_state, self.fault)
+        if now >= self._next_status or reported != self._reported:
+            self._reported = reported
             frames = [
                 (codec, record, self.next_counter(codec)) for codec, record in self.statuses()
             ]
@@ -326,3 +331,4 @@ def _stop_on_signals(stop: Callable[[], None]) -> None:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # kill -USR1: where is it?

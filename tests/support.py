@@ -123,6 +123,9 @@ class Process:
             try:
                 self.popen.wait(grace)
             except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):  # its threads' stacks, if a node
+                    os.kill(self.popen.pid, signal.SIGUSR1)
+                time.sleep(0.5)
                 self.kill()
         return self.popen.returncode
 
