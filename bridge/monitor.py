@@ -39,6 +39,7 @@ RATE_WINDOW = 2.0
 PATH_POINTS = 3000
 """TCP positions kept for the top view (30 s at 100 Hz)."""
 EVENTS_SHOWN = 12
+PANELS = ("arm", "nodes", "top", "events")
 COMMAND_TIMEOUT = 5.0
 """s a command may wait for its reply (the bridge waits 2 s for the controller)."""
 
@@ -282,6 +283,9 @@ class MonitorApp(App[None]):
 
     def on_mount(self) -> None:
         self.sub_title = f"scara/{self.robot}  task keys w/o: {self.scenario.name}"
+        # held, not looked up on each refresh: a refresh may come while the app closes
+        self._panels = {name: self.query_one(f"#{name}", Static) for name in PANELS}
+        self._replies_log = self.query_one("#log", RichLog)
         self.run_worker(self._subscribe, thread=True)
         self.set_interval(0.1, self.refresh_panels)
 
@@ -289,10 +293,11 @@ class MonitorApp(App[None]):
         self._subscribers = subscribe(self.session, self.robot, self.model.on_sample)
 
     def refresh_panels(self) -> None:
-        self.query_one("#arm", Static).update(self.model.arm_text())
-        self.query_one("#nodes", Static).update(self.model.nodes_text())
-        self.query_one("#top", Static).update("TOP VIEW\n" + self.model.top_view())
-        self.query_one("#events", Static).update(self.model.events_text())
+        model = self.model
+        self._panels["arm"].update(model.arm_text())
+        self._panels["nodes"].update(model.nodes_text())
+        self._panels["top"].update("TOP VIEW\n" + model.top_view())
+        self._panels["events"].update(model.events_text())
 
     def action_command(self, name: str) -> None:
         document = task_document(self.scenario)
@@ -314,7 +319,7 @@ class MonitorApp(App[None]):
 
     def _show_reply(self, line: str) -> None:
         self.replies.append(line)
-        self.query_one("#log", RichLog).write(line)
+        self._replies_log.write(line)
 
 
 def print_json_lines(
