@@ -20,9 +20,7 @@ Access control is the Zenoh router's (``config/zenoh/secure-router.json5``).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import os
 import queue
 import signal
 import sys
@@ -58,6 +56,7 @@ from protocol.keys import (
     state_key,
 )
 from protocol.messages import Request
+from protocol.realtime import yield_to_the_nodes
 from protocol.scenario import Scenario, task_document
 from protocol.zenoh_can.config import (
     close,
@@ -330,17 +329,6 @@ def _replier(query: zenoh.Query) -> Any:
 # --- the process ---------------------------------------------------------------------------
 
 
-NICENESS = 5
-"""The bridge runs at a lower priority than the nodes: on a 2-core machine it must not take
-the controller's core when both wake (measured in ``benchmarks/bench_bridge.py``)."""
-
-
-def yield_to_the_loop() -> None:
-    """Lower this process's priority (no precise wake-ups: the bridge is not real time)."""
-    with contextlib.suppress(OSError):
-        os.nice(NICENESS)
-
-
 def parse_rate(text: str) -> tuple[str, float]:
     """``KEY=HZ`` for ``--rate``."""
     key, separator, value = text.partition("=")
@@ -379,7 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
-    yield_to_the_loop()
+    yield_to_the_nodes()
     try:
         robot = check_robot(args.robot)
         base = load_planned(args.scenario) if args.scenario else Scenario("bridge", (), None)

@@ -16,6 +16,7 @@ transport's, inherit them):
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import gc
 import logging
@@ -71,6 +72,18 @@ def _set_slice(libc: ctypes.CDLL, nanoseconds: int) -> bool:
         log.info("scheduler slice not set: %s", os.strerror(ctypes.get_errno()))
         return False
     return True
+
+
+OBSERVER_NICENESS = 5
+"""Processes that only watch the bus (the bridge, the recorder) run this much below the
+nodes: on a 2-core machine they must not win the controller's core when both wake
+(``benchmarks/bench_bridge.py`` measures it)."""
+
+
+def yield_to_the_nodes() -> None:
+    """Lower this process's priority; no precise wake-ups (it is not real time)."""
+    with contextlib.suppress(OSError):
+        os.nice(OBSERVER_NICENESS)
 
 
 def settle_memory() -> None:
