@@ -16,10 +16,12 @@ import argparse
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
+from typing import IO
 
 from tqdm import tqdm
 
@@ -37,6 +39,7 @@ STOP_GRACE = 5.0
 """s a process gets to exit after SIGINT before it is killed."""
 REALTIME_SLACK = 10.0
 """s a real-time run may take beyond twice the scenario's duration (start-up, holds)."""
+RECORDING = "run.mcap"
 ROUTER_START = 10.0
 """s the router gets to answer after it was started."""
 
@@ -70,6 +73,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=600.0,
         metavar="S",
         help="give up after this many seconds (default %(default)g)",
+    )
+    parser.add_argument(
+        "--record",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="record the run to OUT/run.mcap with scara-record (default: on)",
     )
     parser.add_argument(
         "--serve",
@@ -151,6 +160,34 @@ def serve(processes: list[subprocess.Popen[bytes]]) -> int:
     return 1
 
 
+def recorder_command(args: argparse.Namespace) -> list[str]:
+    """``scara-record`` on the same transport, into ``OUT/run.mcap``."""
+    interface, channel = resolve_transport(args.interface, args.channel)
+    command = [sys.executable, "-m", "recorder.node", "--out", str(args.out / RECORDING)]
+    command += ["--scenario", args.scenario, "--run", str(args.out)]
+    command += ["--interface", interface, "--channel", channel]
+    for option in args.bus_option:
+        command += ["--bus-option", option]
+    return command + ["-v"] * args.verbose
+
+
+def start_recorder(args: argparse.Namespace) -> subprocess.Popen[bytes] | None:
+    """The recorder, once it listens (its first line says so); None if it failed."""
+    recorder = subprocess.Popen(recorder_command(args), stderr=subprocess.PIPE)
+    assert recorder.stderr is not None
+    line = recorder.stderr.readline().decode()
+    if recorder.poll() is not None or "recording to" not in line:
+        print(f"scara-run: the recorder did not start: {line.strip()}", file=sys.stderr)
+        return None
+    threading.Thread(target=_echo, args=(recorder.stderr,), daemon=True).start()
+    return recorder
+
+
+def _echo(stream: IO[bytes]) -> None:
+    for line in stream:
+        sys.stderr.write(line.decode())
+
+
 def router_command(args: argparse.Namespace) -> list[str] | None:
     """The router to start for ``args``: None if the transport is not Zenoh or one answers."""
     interface, _ = resolve_transport(args.interface, args.channel)
@@ -205,7 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"scara-run: {error}", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    for stale in ("controller.json", "plant_sim.json", "controller_log.npz"):
+    for stale in ("controller.json", "plant_sim.json", "controller_log.npz", RECORDING):
         (args.out / stale).unlink(missing_ok=True)
     plant_command, controller_command = node_commands(args, scenario.duration)
     order = (
@@ -215,6 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     processes: list[subprocess.Popen[bytes]] = []
     router: subprocess.Popen[bytes] | None = None
+    recorder: subprocess.Popen[bytes] | None = None
     interrupted = False
     try:
         command = router_command(args)
@@ -222,6 +260,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             router = subprocess.Popen(command)
             if not wait_for_router(args, router):
                 print("scara-run: the Zenoh router did not come up", file=sys.stderr)
+                return 1
+        if args.record and not args.serve:
+            recorder = start_recorder(args)
+            if recorder is None:
                 return 1
         processes += [subprocess.Popen(command) for command in order]
         if args.serve:
@@ -245,6 +287,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\nscara-run: interrupted, stopping the nodes", file=sys.stderr)
     finally:
         codes = [stop(process) for process in reversed(processes)]
+        if recorder is not None:
+            stop(recorder)
         if router is not None:
             stop(router)
     if interrupted:

@@ -13,13 +13,14 @@ from pathlib import Path
 import pytest
 from support import ROOT
 
-PACKAGES = ("protocol", "controller", "plant_sim", "sim", "bridge")
+PACKAGES = ("protocol", "controller", "plant_sim", "sim", "bridge", "recorder")
 ALLOWED = {
     "protocol": {"protocol"},
     "controller": {"controller", "protocol"},
     "plant_sim": {"plant_sim", "protocol"},
     "sim": {"sim", "controller", "plant_sim", "protocol"},
     "bridge": {"bridge", "controller", "protocol"},
+    "recorder": {"recorder", "bridge", "sim", "controller", "plant_sim", "protocol"},
 }
 
 

@@ -21,6 +21,9 @@ COMMANDS = {
     "plant_sim": "plant_sim.node",
     "scara-bridge": "bridge.node",
     "scara-monitor": "bridge.monitor",
+    "scara-record": "recorder.node",
+    "scara-replay": "recorder.replay",
+    "scara-plot": "recorder.plot",
 }
 
 pytestmark = pytest.mark.timeout(120)
@@ -76,6 +79,11 @@ def test_help_explains_the_command_and_offers_verbosity(command: str) -> None:
         ("scara-monitor", ["--count", "0"], "--count"),
         ("scara-monitor", ["--zenoh-host", "10.1.2.3"], "--zenoh-host"),
         ("scara-monitor", ["--task", "no-such-scenario"], "scenario"),
+        ("scara-record", ["--scenario", "no-such-scenario"], "scenario"),
+        ("scara-record", ["--duration", "0"], "--duration"),
+        ("scara-replay", ["x.mcap", "--rate", "0"], "--rate"),
+        ("scara-replay", ["x.mcap", "--only", "Nope"], "--only"),
+        ("scara-plot", ["no-such.mcap"], "no-such.mcap"),
     ],
 )
 def test_a_bad_value_exits_2_naming_it(command: str, args: list[str], named: str) -> None:

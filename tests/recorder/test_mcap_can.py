@@ -1,0 +1,192 @@
+"""MCAP as a python-can log format (``recorder/mcap_can.py``), and the recovery of a file
+cut short (``recorder/recover.py``), on files read back with the ``mcap`` library."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import can
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.reader import make_reader
+
+from recorder.mcap_can import (
+    CHUNK_SIZE,
+    FrameChannels,
+    RecordingError,
+    check_mcap,
+    finish,
+    frames,
+    open_writer,
+)
+from recorder.recover import recover
+from recorder.replay import frame_filter, read_frames, selected
+
+
+def frame(
+    t: float, arbitration_id: int, data: bytes, *, extended: bool = False, remote: bool = False
+) -> can.Message:
+    return can.Message(
+        timestamp=t,
+        arbitration_id=arbitration_id,
+        data=b"" if remote else data,
+        dlc=len(data),
+        is_extended_id=extended,
+        is_remote_frame=remote,
+        channel="vcan0",
+    )
+
+
+def key(message: can.Message) -> tuple[object, ...]:
+    """All of a frame but its time (see :func:`same_times`)."""
+    return (
+        message.arbitration_id,
+        bytes(message.data),
+        message.is_extended_id,
+        message.is_remote_frame,
+        message.is_error_frame,
+        message.channel,
+    )
+
+
+def same_times(a: list[can.Message], b: list[can.Message]) -> bool:
+    """Equal within 1 us: a float of epoch seconds holds a quarter of a microsecond."""
+    return len(a) == len(b) and all(
+        abs(x.timestamp - y.timestamp) < 1e-6 for x, y in zip(a, b, strict=True)
+    )
+
+
+def write(path: Path, messages: list[can.Message]) -> None:
+    with can.Logger(path) as writer:  # through python-can's entry point for .mcap
+        for message in messages:
+            writer.on_message_received(message)
+
+
+FRAMES = [
+    frame(100.0, 0x110, bytes(range(7))),
+    frame(100.0005, 0x100, bytes(8)),
+    frame(100.001, 0x123, b"\x01\x02"),
+    frame(100.0015, 0x1ABCDEF, b"\xff" * 8, extended=True),
+    frame(100.002, 0x7FF, bytes(2), remote=True),
+]
+
+
+def test_frames_keep_time_id_data_and_flags_and_channels_are_named_after_the_dbc(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "x.mcap"
+    write(path, FRAMES)
+    with can.LogReader(path) as reader:
+        back = list(reader)
+    assert [key(m) for m in back] == [key(m) for m in FRAMES] and same_times(back, FRAMES)
+    with path.open("rb") as stream:
+        mcap = make_reader(stream)
+        summary = mcap.get_summary()
+        assert summary is not None
+        topics = {channel.topic for channel in summary.channels.values()}
+        encodings = {channel.message_encoding for channel in summary.channels.values()}
+        times = [message.log_time for _, _, message in mcap.iter_messages()]
+        assert summary.chunk_indexes, "no chunk index"
+    assert topics == {
+        "can/JointState1", "can/JointVelocityCommand", "can/0x123", "can/0x01ABCDEFx",
+        "can/0x7FF/remote",
+    }  # fmt: skip
+    assert encodings == {"can-frame"}
+    assert times == [round(m.timestamp * 1e9) for m in FRAMES]
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 0x7FF), st.binary(min_size=0, max_size=8), st.floats(0, 1e-3)),
+        min_size=1,
+        max_size=40,
+    )
+)
+def test_any_standard_frames_round_trip_in_order(raw: list[tuple[int, bytes, float]]) -> None:
+    stream = io.BytesIO()
+    writer = open_writer(stream)
+    channels = FrameChannels(writer)
+    messages, t = [], 1_700_000_000.0
+    for arbitration_id, data, step in raw:
+        t += step
+        messages.append(frame(t, arbitration_id, data))
+        channels.write(messages[-1])
+    finish(writer)
+    stream.seek(0)
+    back = list(frames(stream))
+    assert [key(m) for m in back] == [key(m) for m in messages] and same_times(back, messages)
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc", ".csv", ".log"])
+def test_conversion_to_and_from_python_cans_formats(tmp_path: Path, suffix: str) -> None:
+    standard = [m for m in FRAMES if not m.is_remote_frame]
+    source = tmp_path / "a.mcap"
+    write(source, standard)
+    other, back = tmp_path / f"b{suffix}", tmp_path / "c.mcap"
+    with can.LogReader(source) as reader, can.Logger(other) as writer:
+        for message in reader:
+            writer.on_message_received(message)
+    with can.LogReader(other) as reader, can.Logger(back) as writer:
+        for message in reader:
+            writer.on_message_received(message)
+    with can.LogReader(back) as reader:
+        again = list(reader)
+    assert [(m.arbitration_id, bytes(m.data), m.is_extended_id) for m in again] == [
+        (m.arbitration_id, bytes(m.data), m.is_extended_id) for m in standard
+    ]
+    # the spacing survives (.asc and .blf count time from the start of the log)
+    spacing = [round(m.timestamp - again[0].timestamp, 6) for m in again]
+    assert spacing == [round(m.timestamp - standard[0].timestamp, 6) for m in standard]
+
+
+def test_a_file_cut_short_is_recovered_up_to_its_last_complete_chunk(tmp_path: Path) -> None:
+    count = 60_000  # several chunks of CHUNK_SIZE
+    messages = [
+        frame(100 + i * 1e-4, 0x110, i.to_bytes(4, "little") + bytes(3)) for i in range(count)
+    ]
+    whole = tmp_path / "whole.mcap"
+    write(whole, messages)
+    data = whole.read_bytes()
+    assert len(data) > 3 * CHUNK_SIZE / 10  # compressed, yet more than one chunk
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])  # the writer killed: no summary, no index
+    with pytest.raises(RecordingError, match="scara-record recover"):
+        list(read_frames(cut))
+
+    report = recover(cut, tmp_path / "fixed.mcap")
+    back = list(read_frames(tmp_path / "fixed.mcap"))
+    assert not report.was_complete and report.lost_bytes > 0
+    assert 0 < len(back) == report.messages < count
+    assert [key(m) for m in back] == [key(m) for m in messages[: len(back)]]  # a prefix
+    assert same_times(back, messages[: len(back)])
+    assert f"{report.messages} messages" in report.summary(tmp_path / "fixed.mcap")
+
+    complete = recover(whole, tmp_path / "again.mcap")
+    assert complete.was_complete and complete.lost_bytes == 0 and complete.messages == count
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"", "empty"),
+        (b"timestamp,arbitration_id\n", "not an MCAP file"),
+        (b"\x89MCAP0\r\n\x01\x02", "not a readable MCAP recording"),
+    ],
+)
+def test_bad_files_are_named_errors(tmp_path: Path, content: bytes, message: str) -> None:
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(content)
+    with pytest.raises(RecordingError, match=message):
+        check_mcap(path)
+        list(read_frames(path))
+
+
+def test_selection_by_time_and_frame() -> None:
+    picked = list(selected(FRAMES, frame_filter(["JointState1", "0x123"]), 0.0005, 0.0012))
+    assert [m.arbitration_id for m in picked] == [0x123]
+    assert frame_filter([]) is None
+    with pytest.raises(RecordingError, match="--only 'Nope'"):
+        frame_filter(["Nope"])
