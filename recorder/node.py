@@ -55,6 +55,7 @@ from protocol.realtime import yield_to_the_nodes
 from protocol.scenario import Scenario, scenario_document
 from recorder.mcap_can import FrameChannels, RecordingError, finish, open_writer
 from recorder.recover import recover
+from sim.report import LOG_FILE
 
 log = logging.getLogger("scara.recorder")
 
@@ -68,7 +69,7 @@ STATE_PREFIX = "scara/"
 RUN_FILES = {
     "controller.json": "application/json",
     "plant_sim.json": "application/json",
-    "controller_log.npz": "application/x-npz",
+    LOG_FILE: "application/x-npz",
 }
 """What the nodes write of a run (results, the controller's log): attached with ``--run``."""
 STATE_ENCODING = "json"

@@ -3,8 +3,8 @@
 Reads an MCAP recording (``scara-record``, ``can.logger -f x.mcap``) or any log python-can
 reads (``.blf``, ``.asc``, ``.csv``, ``.log`` ...) and sends its frames onto the bus chosen
 as every command chooses one. Frame ``i`` goes out at ``start + (t_i - t_0) / rate``, slept
-to as an absolute deadline, so errors do not add up. While it runs, Enter pauses and resumes
-(when the terminal is interactive); Ctrl-C stops it cleanly.
+to as an absolute deadline, so errors do not add up. While it runs, the space bar pauses and
+resumes (when the terminal is interactive); Ctrl-C stops it cleanly.
 """
 
 from __future__ import annotations
@@ -13,8 +13,10 @@ import argparse
 import json
 import logging
 import sys
+import termios
 import threading
 import time
+import tty
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -103,24 +105,35 @@ def selected(
 
 
 class Pause:
-    """Enter toggles it (from a thread reading the terminal)."""
+    """The space bar pauses and resumes (a thread reads the terminal, one key at a time)."""
 
     def __init__(self) -> None:
         self.running = threading.Event()
         self.running.set()
         self.paused_for = 0.0
+        self._saved: Any = None
 
     def listen(self) -> None:
+        """Start listening if the terminal is interactive; :meth:`close` gives it back."""
         if not sys.stdin.isatty():
             return
-        thread = threading.Thread(target=self._read, name="keyboard", daemon=True)
-        thread.start()
+        self._saved = termios.tcgetattr(sys.stdin)
+        tty.setcbreak(sys.stdin)  # keys as they are pressed, Ctrl-C still a signal
+        print("space pauses and resumes, Ctrl-C stops", file=sys.stderr)
+        threading.Thread(target=self._read, name="keyboard", daemon=True).start()
+
+    def close(self) -> None:
+        if self._saved is not None:
+            termios.tcsetattr(sys.stdin, termios.TCSADRAIN, self._saved)
+            self._saved = None
 
     def _read(self) -> None:
-        for _ in sys.stdin:
+        while key := sys.stdin.read(1):
+            if key != " ":
+                continue
             if self.running.is_set():
                 self.running.clear()
-                print("paused: Enter resumes", file=sys.stderr)
+                print("\npaused: space resumes", file=sys.stderr)
             else:
                 self.running.set()
 
@@ -231,7 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scara-replay",
         description="Send a recording's CAN frames (MCAP or any python-can log) onto a bus at "
-        "the recorded pace. Enter pauses and resumes; Ctrl-C stops.",
+        "the recorded pace. Space pauses and resumes; Ctrl-C stops.",
     )
     parser.add_argument("file", type=Path, help="the recording (.mcap, .blf, .asc, .log ...)")
     pace = parser.add_mutually_exclusive_group()
@@ -358,6 +371,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"scara-replay: {error}", file=sys.stderr)
         return 2
     finally:
+        pause.close()
         if session is not None:
             session.close()  # type: ignore[no-untyped-call]
         else:

@@ -33,13 +33,12 @@ from protocol.errors import ScaraError
 from protocol.node import ClockMode, add_timing_arguments
 from protocol.scenario import Mode
 from protocol.zenoh_can.config import DEFAULT_HOST, DEFAULT_PORT, router_reachable
-from sim.report import format_report, read_run
+from sim.report import LOG_FILE, RECORDING, format_report, read_run
 
 STOP_GRACE = 5.0
 """s a process gets to exit after SIGINT before it is killed."""
 REALTIME_SLACK = 10.0
 """s a real-time run may take beyond twice the scenario's duration (start-up, holds)."""
-RECORDING = "run.mcap"
 ROUTER_START = 10.0
 """s the router gets to answer after it was started."""
 
@@ -113,11 +112,12 @@ def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str],
     plant = [sys.executable, "-m", "plant_sim.node", *common]
     controller = [sys.executable, "-m", "controller.node", *common]
     if args.serve:
-        return plant, [*controller, "--service"]
-    wall_time = args.timeout
-    if args.clock == ClockMode.REALTIME.value:
-        wall_time = min(wall_time, 2.0 * duration + REALTIME_SLACK)
-    controller += ["--max-wall-time", f"{wall_time:g}"]
+        controller.append("--service")  # serves until stopped: no wall-time limit
+    else:
+        wall_time = args.timeout
+        if args.clock == ClockMode.REALTIME.value:
+            wall_time = min(wall_time, 2.0 * duration + REALTIME_SLACK)
+        controller += ["--max-wall-time", f"{wall_time:g}"]
     if args.mode:
         controller += ["--mode", args.mode]
     if args.comms_timeout:
@@ -242,7 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"scara-run: {error}", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    for stale in ("controller.json", "plant_sim.json", "controller_log.npz", RECORDING):
+    for stale in ("controller.json", "plant_sim.json", LOG_FILE, RECORDING):
         (args.out / stale).unlink(missing_ok=True)
     plant_command, controller_command = node_commands(args, scenario.duration)
     order = (
@@ -287,8 +287,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\nscara-run: interrupted, stopping the nodes", file=sys.stderr)
     finally:
         codes = [stop(process) for process in reversed(processes)]
-        if recorder is not None:
-            stop(recorder)
+        if recorder is not None and stop(recorder) == 0:
+            (args.out / LOG_FILE).unlink(missing_ok=True)  # its copy in the recording is kept
         if router is not None:
             stop(router)
     if interrupted:

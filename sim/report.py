@@ -1,7 +1,8 @@
 """The report of a co-simulation run, read back from the folder its nodes wrote.
 
 ``controller.json`` and ``plant_sim.json`` are the nodes' results and ``controller_log.npz``
-the controller's log; the measures are computed here from that log, by the same
+the controller's log (after ``scara-run``, only inside the run's recording ``run.mcap``,
+which holds the whole run); the measures are computed here from that log, by the same
 :func:`~sim.measures.compute_measures` as the in-process simulation's. ``scara-report RUN``
 prints it for a run whose nodes were started by hand; ``scara-run`` prints it at the end.
 """
@@ -9,14 +10,16 @@ prints it for a run whose nodes were started by hand; ``scara-run`` prints it at
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
+from mcap.reader import make_reader
 
 from controller.runlog import COLUMNS, RunLog
 from protocol.cli import add_verbosity, configure_logging
@@ -24,6 +27,9 @@ from protocol.errors import ScaraError
 from protocol.scenario import parse_scenario
 from sim.measures import Measures, compute_measures, format_table
 
+LOG_FILE = "controller_log.npz"
+RECORDING = "run.mcap"
+"""The recording ``scara-run`` makes of a run; the log's copy in it is the one kept."""
 MIN_ROWS = 20
 """Fewer logged control steps than this give no measures (nothing ran)."""
 
@@ -38,7 +44,7 @@ class RunReport:
     measures: Measures | None
 
 
-def read_log(path: Path) -> RunLog:
+def read_log(path: Path | IO[bytes]) -> RunLog:
     """The controller's log as written by the controller node."""
     with np.load(path) as saved:
         columns = tuple(saved["columns"].tolist())
@@ -47,13 +53,26 @@ def read_log(path: Path) -> RunLog:
         return RunLog.from_array(saved["data"])
 
 
+def _log_source(out: Path) -> Path | IO[bytes]:
+    """The log file, or the copy inside the run's recording (``scara-run`` keeps only that)."""
+    path = out / LOG_FILE
+    recording = out / RECORDING
+    if path.exists() or not recording.exists():
+        return path
+    with recording.open("rb") as stream:
+        for attachment in make_reader(stream).iter_attachments():
+            if attachment.name == LOG_FILE:
+                return io.BytesIO(attachment.data)
+    raise ScaraError(f"{out}: no {LOG_FILE}, in the folder or attached to {RECORDING}")
+
+
 def read_run(out: Path) -> RunReport:
     """The report of the run in ``out``, measured against the scenario the controller ran
     (its result carries it whole)."""
     controller: dict[str, Any] = json.loads((out / "controller.json").read_text())
     plant_file = out / "plant_sim.json"
     plant = json.loads(plant_file.read_text()) if plant_file.exists() else None
-    log = read_log(out / "controller_log.npz")
+    log = read_log(_log_source(out))
     scenario = parse_scenario(controller["scenario_document"])
     measures = compute_measures(scenario, log) if len(log) >= MIN_ROWS else None
     return RunReport(controller, plant, log, measures)

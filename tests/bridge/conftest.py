@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 import zenoh
-from robot_stack import PASSWORDS, SECURE_CONFIG, Stack, open_client, start_router
+from robot_stack import COMMS, PASSWORDS, SECURE_CONFIG, Stack, open_client, start_router
 from support import Processes
 
 
@@ -32,7 +32,7 @@ def make_stack(processes: Processes) -> Callable[..., Stack]:
             args += ["--user", "bridge", "--password-file", str(password)]
         stack = Stack(processes, can_port, zenoh_port, args)
         stack.plant = processes.start("plant_sim.node", *stack.bus, name="plant")
-        stack.controller = processes.start("controller.node", *stack.bus, name="controller")
+        stack.controller = processes.start("controller.node", *stack.bus, *COMMS, name="controller")
         stack.start_bridge()
         return stack
 

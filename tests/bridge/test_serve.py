@@ -9,7 +9,7 @@ import threading
 import time
 from typing import Any
 
-from robot_stack import ROBOT, START, command, latest, open_client
+from robot_stack import COMMS, ROBOT, START, command, latest, open_client
 from support import Processes, free_port, wait_until
 
 from protocol.zenoh_can.config import router_reachable
@@ -18,7 +18,7 @@ from protocol.zenoh_can.config import router_reachable
 def test_serve_runs_the_scenario_on_command_and_stops_on_ctrl_c(processes: Processes) -> None:
     port = free_port()
     launcher = processes.start(
-        "sim.launch", "reference", "--serve", "--interface", "zenoh",
+        "sim.launch", "reference", "--serve", *COMMS, "--interface", "zenoh",
         "--channel", "served", "--bus-option", f"port={port}", name="scara-run",
     )  # fmt: skip
     wait_until(lambda: router_reachable("127.0.0.1", port), START, "the launcher's router")

@@ -26,7 +26,6 @@ import numpy as np
 import pytest
 from support import Observer, Process, Processes, Transport
 
-from controller.runlog import COLUMNS
 from plant_sim.node import PlantNode
 from protocol.codec import WIRE
 from protocol.errors import DecodeError
@@ -191,9 +190,7 @@ def assert_bit_identical(result: dict[str, Any], out: Path, mode: Mode) -> None:
     got = json.loads(json.dumps(result["measures"]))
     differing = {k: (got.get(k), want[k]) for k in want if not same(got.get(k), want[k])}
     assert same(got, want), f"measures differ from the in-process simulation: {differing}"
-    with np.load(out / "controller_log.npz") as log:
-        data, columns = log["data"], log["columns"]
-    assert tuple(columns.tolist()) == COLUMNS
+    data = read_run(out).log.data  # (the log's columns are checked as it is read)
     simulated = expected.log.data
     assert data.dtype == simulated.dtype and data.shape == simulated.shape
     if data.tobytes() != simulated.tobytes():

@@ -24,6 +24,7 @@ from plant_sim.node import PlantNode
 from protocol.node import ClockMode
 from protocol.scenario import Mode, load_scenario
 from sim.measures import compute_measures
+from sim.report import read_run
 from sim.simulation import simulate
 
 NAMESPACE_SETUP = (
@@ -81,8 +82,8 @@ def test_lockstep_over_udp_multicast_in_a_namespace(tmp_path: Path) -> None:
     assert completed.returncode == 0, completed.stderr[-2000:]
     result = json.loads((tmp_path / "controller.json").read_text())
     expected = simulate(load_scenario("reference"))
-    with np.load(tmp_path / "controller_log.npz") as log:
-        assert np.array_equal(log["data"], expected.log.data)
+    log = read_run(tmp_path).log  # from the run's recording, which holds it
+    assert np.array_equal(log.data, expected.log.data)
     assert result["e2e"]["corrupt"] == 0
 
 

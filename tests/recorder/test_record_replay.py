@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 import signal
 import statistics
 import subprocess
@@ -24,8 +25,10 @@ from support import ROOT, Observer, Processes, Transport, wait_until
 from bridge.session import ZenohEndpoint
 from protocol.keys import DEFAULT_ROBOT, schema
 from protocol.messages import STATE
+from protocol.scenario import load_scenario
 from recorder.mcap_can import finish, open_writer
 from sim.report import read_run
+from sim.simulation import simulate
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -118,7 +121,13 @@ def test_a_run_is_recorded_whole_frames_state_results_and_log(
     unpacked.mkdir()
     for name in ("controller.json", "plant_sim.json", "controller_log.npz"):
         (unpacked / name).write_bytes(attachments[name])
-    assert read_run(unpacked).measures == read_run(out).measures
+    assert not (out / "controller_log.npz").exists()  # the recording holds the run's log
+    from_file = read_run(unpacked)
+    assert from_file.measures == read_run(out).measures
+    if clock == "lockstep":  # lockstep is exact: the recorded log is the simulation's
+        simulated = simulate(load_scenario("reference"))
+        assert from_file.log.data.tobytes() == simulated.log.data.tobytes()
+        assert from_file.measures == simulated.measures
     assert json.loads(recording["command_line"])[0] == "scara-record"
 
     # scara-plot prints what scara-run printed live, and draws the figure
@@ -368,3 +377,43 @@ def test_the_decoded_state_of_a_recording_replays_onto_the_zenoh_keys(
     subscriber.undeclare()
     session.close()  # type: ignore[no-untyped-call]
     assert seen == payloads
+
+
+@pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
+def test_the_space_bar_pauses_and_resumes_a_replay_in_a_terminal(
+    transport: Transport, observer_on: Any, tmp_path: Path
+) -> None:
+    file = tmp_path / "slow.mcap"
+    with can.Logger(file) as writer:
+        for index in range(400):  # 4 s
+            writer.on_message_received(
+                can.Message(
+                    timestamp=1_800_000_000.0 + 0.01 * index,
+                    arbitration_id=0x123,
+                    data=index.to_bytes(2, "little"),
+                    is_extended_id=False,
+                )
+            )
+    observer: Observer = observer_on(transport)
+    session = f"replay-{transport.options['port']}"
+    command = " ".join(
+        [sys.executable, "-m", "recorder.replay", str(file), *transport.cli(), "; sleep 30"]
+    )
+    subprocess.run(
+        ["tmux", "new-session", "-d", "-s", session, "-x", "120", "-y", "30", command],
+        check=True, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        wait_until(lambda: len(observer.frames()) >= 50, 30.0, "the replay to start")
+        subprocess.run(["tmux", "send-keys", "-t", session, " "], check=True)
+        time.sleep(0.5)  # the key reaches it
+        paused = len(observer.frames())
+        time.sleep(1.5)
+        assert len(observer.frames()) == paused, "frames went on while paused"
+        subprocess.run(["tmux", "send-keys", "-t", session, " "], check=True)
+        wait_until(lambda: len(observer.frames()) == 400, 30.0, "the rest of the replay")
+    finally:
+        subprocess.run(["tmux", "kill-session", "-t", session], capture_output=True)
+    assert paused < 400
+    received = [int.from_bytes(m.data, "little") for m in observer.frames()]
+    assert received == list(range(400))
