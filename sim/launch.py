@@ -172,12 +172,18 @@ def recorder_command(args: argparse.Namespace) -> list[str]:
 
 
 def start_recorder(args: argparse.Namespace) -> subprocess.Popen[bytes] | None:
-    """The recorder, once it listens (its first line says so); None if it failed."""
+    """The recorder, once it listens (it says so on stderr); None if it failed."""
     recorder = subprocess.Popen(recorder_command(args), stderr=subprocess.PIPE)
     assert recorder.stderr is not None
-    line = recorder.stderr.readline().decode()
-    if recorder.poll() is not None or "recording to" not in line:
-        print(f"scara-run: the recorder did not start: {line.strip()}", file=sys.stderr)
+    said: list[str] = []
+    for raw in recorder.stderr:  # with -v, log lines may come first
+        said.append(raw.decode())
+        sys.stderr.write(said[-1])
+        if "recording to" in said[-1]:
+            break
+    else:
+        recorder.wait()
+        print(f"scara-run: the recorder did not start: {''.join(said).strip()}", file=sys.stderr)
         return None
     threading.Thread(target=_echo, args=(recorder.stderr,), daemon=True).start()
     return recorder
