@@ -22,12 +22,10 @@ from __future__ import annotations
 import argparse
 import json
 import queue
-import signal
 import sys
 import threading
 import time
 from collections.abc import Sequence
-from types import FrameType
 from typing import Any
 
 import can
@@ -56,6 +54,7 @@ from protocol.keys import (
     state_key,
 )
 from protocol.messages import Request
+from protocol.node import stop_on_signals
 from protocol.realtime import yield_to_the_nodes
 from protocol.scenario import Scenario, task_document
 from protocol.zenoh_can.config import (
@@ -302,6 +301,10 @@ class Bridge:
 
         return on_query
 
+    def stop(self) -> None:
+        """End :meth:`run` (from a signal handler)."""
+        self.running = False
+
     def close(self) -> None:
         self.running = False
         self._publisher.join(2.0)
@@ -384,11 +387,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     bridge = Bridge(bus, session, robot, base, DEFAULT_RATES | dict(args.rate))
 
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        bridge.running = False
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop_on_signals(bridge.stop)
     print(f"scara-bridge: {robot} on scara/{robot}/ (Ctrl-C to stop)", file=sys.stderr, flush=True)
     try:
         bridge.run()

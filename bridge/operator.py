@@ -16,19 +16,15 @@ from typing import Any
 
 import can
 
-from bridge.view import Event, RobotView
+from bridge.view import VIEWED, Event, RobotView
 from protocol.codec import MessageCodec
 from protocol.isotp_link import IsoTpLink
 from protocol.messages import (
     CONTROLLER_ANSWER,
     CONTROLLER_STATUS,
-    COORDINATION,
     NODE_COMMAND,
-    PLANT_STATUS,
-    RUN_STATUS,
     SCENARIO_DOWNLOAD,
     SCENARIO_UPLOAD,
-    STATE,
     STATE_IDS,
     STOP,
     Answered,
@@ -73,7 +69,7 @@ class OperatorNode(Node):
     name = "bridge"
     node_id = NodeId.OPERATOR
     status = CONTROLLER_STATUS  # it sends none of its own; this is what it watches most
-    listens = (*STATE, CONTROLLER_STATUS, PLANT_STATUS, COORDINATION, RUN_STATUS, CONTROLLER_ANSWER)
+    listens = (*VIEWED, CONTROLLER_ANSWER)
     Fault = PlantFault  # never raised: the bridge has no faults of its own on the bus
 
     def __init__(

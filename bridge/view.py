@@ -21,6 +21,7 @@ from protocol.messages import (
     COORDINATION,
     PLANT_STATUS,
     RUN_STATUS,
+    STATE,
     Behaviour,
     ControllerFault,
     ControllerFlag,
@@ -30,6 +31,9 @@ from protocol.messages import (
     PlantFlag,
     Side,
 )
+
+VIEWED = (*STATE, CONTROLLER_STATUS, PLANT_STATUS, COORDINATION, RUN_STATUS)
+"""The frames a :class:`RobotView` is built from (the bridge and the recorder listen to them)."""
 
 ALIVE_FOR = 0.5
 """s after its last status frame (sent at 10 Hz) a node still counts as alive."""

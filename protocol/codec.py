@@ -42,6 +42,11 @@ CRC_XOR_OUT = 0xFF
 COUNTER_MODULO = 16
 
 
+def alive_counter(data: bytes | bytearray) -> int:
+    """The alive counter of a frame's E2E header (low nibble of byte 1), without decoding."""
+    return data[1] & 0x0F
+
+
 def _crc_table() -> tuple[int, ...]:
     table = []
     for byte in range(256):
@@ -260,7 +265,7 @@ class MessageCodec:
                     self.frame_id, f"{self.name}.{self.signal_names[index]}: raw {raw} out of range"
                 )
             values.append(raw if integer else raw * scale + offset)
-        return second & 0x0F, self._make(self.Record, values)
+        return alive_counter(data), self._make(self.Record, values)
 
 
 @dataclass(frozen=True, slots=True)

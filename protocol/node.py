@@ -304,7 +304,7 @@ def node_main(
         bus.shutdown()
         print(f"{prog}: {error}", file=sys.stderr)
         return 2
-    _stop_on_signals(node.stop)
+    stop_on_signals(node.stop)
     settle_memory()
     started = time.monotonic()
     try:
@@ -323,8 +323,9 @@ def node_main(
     return node.exit_code
 
 
-def _stop_on_signals(stop: Callable[[], None]) -> None:
-    """SIGINT and SIGTERM end the node's loop; it then closes its bus itself."""
+def stop_on_signals(stop: Callable[[], None]) -> None:
+    """SIGINT and SIGTERM call ``stop`` (the process then closes its bus itself); SIGUSR1
+    prints every thread's stack. For every process that owns a bus loop."""
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         stop()

@@ -22,35 +22,29 @@ import importlib.metadata
 import json
 import logging
 import queue
-import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import can
 from mcap.writer import Writer
 
-from bridge.view import RobotView
+from bridge.view import VIEWED, RobotView
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, open_bus_from_args
 from protocol.cli import add_verbosity, configure_logging, number
-from protocol.codec import DBC_TEXT
+from protocol.codec import DBC_TEXT, alive_counter
 from protocol.e2e import E2EMonitor
 from protocol.errors import ScaraError
 from protocol.keys import schema
 from protocol.messages import (
-    CONTROLLER_STATUS,
-    COORDINATION,
-    PLANT_STATUS,
-    RUN_STATUS,
-    STATE,
     STATE_IDS,
     JointStateParts,
 )
+from protocol.node import stop_on_signals
 from protocol.realtime import yield_to_the_nodes
 from protocol.scenario import Scenario, scenario_document
 from recorder.mcap_can import FrameChannels, RecordingError, finish, open_writer
@@ -73,10 +67,7 @@ RUN_FILES = {
 }
 """What the nodes write of a run (results, the controller's log): attached with ``--run``."""
 STATE_ENCODING = "json"
-LISTENED = {
-    codec.frame_id for codec in (*STATE, CONTROLLER_STATUS, PLANT_STATUS, COORDINATION, RUN_STATUS)
-}
-"""The frames the state is decoded from (the bridge's, but for the answers to requests)."""
+LISTENED = {codec.frame_id for codec in VIEWED}
 
 
 class StateChannels:
@@ -128,7 +119,9 @@ class StateChannels:
         if message.timestamp >= self._next_joints:
             return True
         if len(message.data) > 1 and not (message.is_error_frame or message.is_remote_frame):
-            self.monitor.check(message.arbitration_id, message.data[1] & 0x0F, message.timestamp)
+            self.monitor.check(
+                message.arbitration_id, alive_counter(message.data), message.timestamp
+            )
         return False
 
     def _write(self, name: str, payload: dict[str, Any] | None, received: float) -> None:
@@ -191,6 +184,10 @@ class Recorder:
                 return
             self._frames.write(message)
             self._state.feed(message, self.counts)
+
+    def stop(self) -> None:
+        """End :meth:`run` (from a signal handler)."""
+        self.running = False
 
     def close(
         self, scenario: Scenario | None, scenario_file: Path | None, run: Path | None = None
@@ -309,11 +306,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"scara-record: {args.out}: {error.strerror}", file=sys.stderr)
         return 2
 
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        recorder.running = False
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop_on_signals(recorder.stop)
     print(f"scara-record: recording to {args.out} (Ctrl-C to stop)", file=sys.stderr, flush=True)
     try:
         recorder.run(args.duration)
