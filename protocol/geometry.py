@@ -6,6 +6,10 @@ is the ellipse with both semi-axes grown by that amount, which contains every po
 than the inflation to the true section along the axes and is what clearance is measured to.
 The controller's module DM measures it (``controller/obstacle.py``); the plant simulator uses
 it as ground truth for collisions.
+
+Squares are ``x * x`` and lengths ``sqrt(x * x + y * y)``, not ``x ** 2`` and ``hypot``: numpy
+has bit-identical twins of these (and not of libm's ``pow`` or Python's ``hypot``), so the
+batch simulator (``sim/batch.py``) reproduces this geometry exactly.
 """
 
 from __future__ import annotations
@@ -86,7 +90,8 @@ class EllipticCylinder:
     def contains(self, px: float, py: float) -> bool:
         a, b = self.semi_axes
         lx, ly = self.to_local(px, py)
-        return (lx / a) ** 2 + (ly / b) ** 2 < 1.0
+        su, sv = lx / a, ly / b
+        return su * su + sv * sv < 1.0
 
     def nearest_point(self, px: float, py: float) -> tuple[float, Point]:
         """Signed distance to the inflated section's boundary and the boundary point."""
@@ -103,7 +108,7 @@ class EllipticCylinder:
         a, b = self.semi_axes
         lx, ly = self.to_local(px, py)
         sx, sy = lx / a, ly / b
-        norm = math.hypot(sx, sy)
+        norm = math.sqrt(sx * sx + sy * sy)
         if norm <= 1.0:
             return None
         centre_angle = math.atan2(sy, sx)
@@ -150,7 +155,8 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
     if a < b:
         distance, (cy, cx) = _ellipse_distance(b, a, v, u)
         return distance, (cx, cy)
-    inside = (u / a) ** 2 + (v / b) ** 2 < 1.0
+    su, sv = u / a, v / b
+    inside = su * su + sv * sv < 1.0
     # A coordinate within rounding of an axis is taken as on it (an error of at most 1e-12 of
     # the axis), where the closed forms below hold and Newton's denominators could vanish.
     if v <= AXIS_SNAP * b:
@@ -160,8 +166,10 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
     if v == 0.0:
         if u < (a * a - b * b) / a:
             x0 = a * a * u / (a * a - b * b)
-            y0 = b * math.sqrt(max(0.0, 1.0 - (x0 / a) ** 2))
-            return -math.hypot(x0 - u, y0), (x0, y0)
+            sx = x0 / a
+            y0 = b * math.sqrt(max(0.0, 1.0 - sx * sx))
+            dx = x0 - u
+            return -math.sqrt(dx * dx + y0 * y0), (x0, y0)
         return u - a, (a, 0.0)
     if u == 0.0:
         return v - b, (0.0, b)
@@ -182,5 +190,6 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
         if abs(step) <= 1e-15 * s:
             break
     cx, cy = a * a * u / (s + gap), b * b * v / s
-    distance = math.hypot(cx - u, cy - v)
+    dx, dy = cx - u, cy - v
+    distance = math.sqrt(dx * dx + dy * dy)
     return (-distance if inside else distance), (cx, cy)
