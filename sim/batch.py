@@ -1,0 +1,1033 @@
+"""The in-process simulation of many scenarios at once: one numpy array step advances them all.
+
+Each array step is one tick of :func:`sim.simulation.simulate` for every scenario of the batch:
+the wire (:mod:`protocol.messages`), the control law (:class:`controller.control_law.ControlLaw`)
+and the plant model (:class:`plant_sim.model.PlantModel`), written with the same operations in
+the same order as the scalar code. The wire rounds, so a value one ulp off could round the
+other way and the runs part; hence only ufuncs that agree bit for bit with :mod:`math` here
+(``+ - * /``, ``sqrt``, ``sin``, ``cos``, ``atan2``, ``acos``, ``exp``, ``%``, ``rint``;
+``tests/sim/test_batch.py`` checks them), ``math.tanh`` itself where it is needed (numpy's
+differs in the last bit), and ties of ``min``/``max`` broken as Python does (:func:`_min`).
+A branch becomes a mask: both sides are computed and one is kept, or the rare side is computed
+on the few scenarios that take it.
+
+Scenarios in one batch share the robot, the gains, the plant model and the mode; they differ
+in waypoints (padded), obstacle (a scenario without one gets a placeholder no tick measures)
+and duration (a finished scenario is still stepped, but no longer counted in its measures).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from controller.behaviours import PLANNED_REST_SPEED, TURN_LEFT, TURN_RIGHT
+from controller.control_law import GOAL_HANDOVER
+from controller.coordination import AHEAD_FULL, AHEAD_NONE
+from controller.fuzzy import OUTPUT_TERMS, FuzzyInference, RuleBase
+from controller.obstacle import absent
+from controller.planner import Trajectory, plan_of
+from protocol.geometry import AXIS_SNAP, EllipticCylinder
+from protocol.kinematics import DAMPING_S2_REF, tcp_velocity
+from protocol.messages import COMMAND, STATE
+from protocol.scenario import Mode, Scenario
+from sim.measures import (
+    JERK_WINDOW,
+    STOP_EDGE_MARGIN,
+    STOP_MIN_TICKS,
+    STOP_SPEED_FRACTION,
+    WAYPOINT_TOLERANCE,
+    Measures,
+)
+
+Array = npt.NDArray[np.float64]
+Mask = npt.NDArray[np.bool_]
+Index = npt.NDArray[np.intp]
+
+BLOCK_TICKS = 128
+"""Ticks of log kept before they are folded into the measures (memory: 14 columns of this)."""
+NEWTON_ITERATIONS = 64
+"""As in :func:`protocol.geometry._ellipse_distance`."""
+
+
+# --- elementwise twins of the scalar code's building blocks ------------------------------
+
+
+def _min(a: Array | float, b: Array | float) -> Array:
+    """Python's ``min(a, b)``: ``a`` on a tie (which only shows with signed zeros)."""
+    return np.minimum(b, a)
+
+
+def _max(a: Array | float, b: Array | float) -> Array:
+    """Python's ``max(a, b)``: ``a`` on a tie."""
+    return np.maximum(b, a)
+
+
+def _smoothstep(x: Array) -> Array:
+    """:func:`controller.coordination.smoothstep`."""
+    x = np.where(x < 0.0, 0.0, np.where(x > 1.0, 1.0, x))
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _wrap(angle: Array) -> Array:
+    """:func:`protocol.geometry.wrap_angle`."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _tanh(x: Array) -> Array:
+    """``math.tanh`` of each element (numpy's tanh differs from libm's in the last bit)."""
+    return np.fromiter(map(math.tanh, x.tolist()), np.float64, len(x))
+
+
+def _norm2(x: Array, y: Array) -> Array:
+    """The length of (x, y) as the scalar code takes it: ``sqrt(x * x + y * y)``."""
+    return np.sqrt(x * x + y * y)
+
+
+class _Wire:
+    """:func:`protocol.messages.on_the_wire_state` and ``on_the_wire_command`` on (3, n)."""
+
+    def __init__(self, specs: Sequence[object]) -> None:
+        self.scale = np.array([[spec.scale] for spec in specs])  # type: ignore[attr-defined]
+        self.offset = np.array([[spec.offset] for spec in specs])  # type: ignore[attr-defined]
+
+    def __call__(self, values: Array) -> Array:
+        # The codec's range check cannot fire here: the plant keeps positions within the
+        # joint limits and speeds within the speed limits, and the law its commands within
+        # the speed limits, all of which check_robot_fits_wire keeps within the wire's ranges.
+        return np.asarray(np.rint((values - self.offset) / self.scale) * self.scale + self.offset)
+
+
+WIRE_POSITION = _Wire([codec.spec["Position"] for codec in STATE])
+WIRE_VELOCITY = _Wire([codec.spec["Velocity"] for codec in STATE])
+WIRE_COMMAND = _Wire([COMMAND.spec[name] for name in ("Theta1Rate", "Theta2Rate", "D3Rate")])
+
+
+# --- the obstacle's section, per scenario ----------------------------------------------------
+
+
+class _Sections:
+    """One :class:`EllipticCylinder` per scenario, as arrays (see ``protocol/geometry.py``)."""
+
+    def __init__(self, obstacles: Sequence[EllipticCylinder | None]) -> None:
+        placeholder = EllipticCylinder(100.0, 100.0, 0.02, 0.01, 1.0)
+        shapes = [obstacle or placeholder for obstacle in obstacles]
+        self.x = np.array([o.x for o in shapes])
+        self.y = np.array([o.y for o in shapes])
+        self.cos = np.array([math.cos(o.yaw) for o in shapes])
+        self.sin = np.array([math.sin(o.yaw) for o in shapes])
+        self.a = np.array([o.semi_axes[0] for o in shapes])
+        self.b = np.array([o.semi_axes[1] for o in shapes])
+        self.inflation = np.array([o.inflation for o in shapes])
+        self.top = np.array([-math.inf if o is None else o.height + o.inflation for o in obstacles])
+
+    def take(self, index: Index) -> _Sections:
+        """The sections of the scenarios ``index`` only."""
+        part = object.__new__(_Sections)
+        for name in ("x", "y", "cos", "sin", "a", "b", "inflation", "top"):
+            setattr(part, name, getattr(self, name)[index])
+        return part
+
+    def to_local(self, px: Array, py: Array) -> tuple[Array, Array]:
+        dx, dy = px - self.x, py - self.y
+        return (self.cos * dx + self.sin * dy, -self.sin * dx + self.cos * dy)
+
+    def to_world(self, lx: Array, ly: Array) -> tuple[Array, Array]:
+        return (
+            self.x + self.cos * lx - self.sin * ly,
+            self.y + self.sin * lx + self.cos * ly,
+        )
+
+    def nearest_point(self, lx: Array, ly: Array) -> tuple[Array, Array, Array]:
+        """Signed distance and boundary point (world) from local coordinates."""
+        distance, cx, cy = _ellipse_distance(self.a, self.b, np.abs(lx), np.abs(ly))
+        wx, wy = self.to_world(np.copysign(cx, lx), np.copysign(cy, ly))
+        return distance, wx, wy
+
+    def tangent_points(
+        self, px: Array, py: Array, lx: Array, ly: Array
+    ) -> tuple[Mask, Array, Array, Array, Array]:
+        """Outside (else the scalar code's None), then the left and right edges (x, y)."""
+        sx, sy = lx / self.a, ly / self.b
+        norm = np.sqrt(sx * sx + sy * sy)
+        outside = norm > 1.0
+        centre_angle = np.arctan2(sy, sx)
+        spread = np.arccos(1.0 / norm)
+        first_x, first_y = self.to_world(
+            self.a * np.cos(centre_angle + spread), self.b * np.sin(centre_angle + spread)
+        )
+        second_x, second_y = self.to_world(
+            self.a * np.cos(centre_angle - spread), self.b * np.sin(centre_angle - spread)
+        )
+        to_centre_x, to_centre_y = self.x - px, self.y - py
+        first_left = to_centre_x * (first_y - py) - to_centre_y * (first_x - px) > 0.0
+        return (
+            outside,
+            np.where(first_left, first_x, second_x),
+            np.where(first_left, first_y, second_y),
+            np.where(first_left, second_x, first_x),
+            np.where(first_left, second_y, first_y),
+        )
+
+    def line_crossings(
+        self, plx: Array, ply: Array, qx: Array, qy: Array
+    ) -> tuple[Mask, Array, Array]:
+        """Whether the line p->q crosses (else None), and its entry and exit parameters."""
+        qlx, qly = self.to_local(qx, qy)
+        ox, oy = plx / self.a, ply / self.b
+        dx, dy = (qlx - plx) / self.a, (qly - ply) / self.b
+        quad_a = dx * dx + dy * dy
+        half_b = ox * dx + oy * dy
+        quad_c = ox * ox + oy * oy - 1.0
+        discriminant = half_b * half_b - quad_a * quad_c
+        crosses = (quad_a != 0.0) & ~(discriminant < 0.0)
+        root = np.sqrt(discriminant)
+        return crosses, (-half_b - root) / quad_a, (-half_b + root) / quad_a
+
+
+def _ellipse_distance(a: Array, b: Array, u: Array, v: Array) -> tuple[Array, Array, Array]:
+    """:func:`protocol.geometry._ellipse_distance` (``a >= b`` always: long >= short)."""
+    su, sv = u / a, v / b
+    inside = su * su + sv * sv < 1.0
+    v = np.where(v <= AXIS_SNAP * b, 0.0, v)
+    u = np.where(u <= AXIS_SNAP * a, 0.0, u)
+    aa, bb = a * a, b * b
+    gap = aa - bb
+    # On the long axis: inside the evolute's reach, or at its end.
+    x0 = aa * u / gap
+    sx = x0 / a
+    y0 = b * np.sqrt(_max(0.0, 1.0 - sx * sx))
+    dx0 = x0 - u
+    evolute = u < gap / a
+    distance = np.where(evolute, -np.sqrt(dx0 * dx0 + y0 * y0), u - a)
+    cx = np.where(evolute, x0, a)
+    cy = np.where(evolute, y0, 0.0)
+    # On the short axis.
+    on_short = (u == 0.0) & (v != 0.0)
+    distance = np.where(on_short, v - b, distance)
+    cx = np.where(on_short, 0.0, cx)
+    cy = np.where(on_short, b, cy)
+    general = np.flatnonzero((u != 0.0) & (v != 0.0))
+    if len(general):
+        s = _newton(a[general], b[general], u[general], v[general], gap[general])
+        ga, gb, gu, gv, ggap = a[general], b[general], u[general], v[general], gap[general]
+        gx = ga * ga * gu / (s + ggap)
+        gy = gb * gb * gv / s
+        ddx, ddy = gx - gu, gy - gv
+        found = np.sqrt(ddx * ddx + ddy * ddy)
+        distance[general] = np.where(inside[general], -found, found)
+        cx[general] = gx
+        cy[general] = gy
+    return distance, cx, cy
+
+
+def _newton(a: Array, b: Array, u: Array, v: Array, gap: Array) -> Array:
+    """Eberly's Newton iteration on s, each element stopping where the scalar loop breaks."""
+    s = _max(b * v, a * u - gap)
+    result = s.copy()
+    active = np.arange(len(s))
+    for _ in range(NEWTON_ITERATIONS):
+        ratio_u = a * u / (s + gap)
+        ratio_v = b * v / s
+        value = ratio_u * ratio_u + ratio_v * ratio_v - 1.0
+        moving = ~(value <= 0.0)
+        slope = -2.0 * (ratio_u * ratio_u / (s + gap) + ratio_v * ratio_v / s)
+        step = value / slope
+        s = np.where(moving, s - step, s)
+        going = moving & ~(np.abs(step) <= 1e-15 * s)
+        if going.all():
+            continue
+        stopped = ~going
+        result[active[stopped]] = s[stopped]
+        active = active[going]
+        a, b, u, v, gap, s = a[going], b[going], u[going], v[going], gap[going], s[going]
+        if not len(active):
+            return result
+    result[active] = s
+    return result
+
+
+# --- the plan, per scenario -------------------------------------------------------------
+
+
+class _Plans:
+    """Each scenario's :class:`Trajectory`, with the segment it is in as state.
+
+    ``stage`` i < n - 1 is segment i (from waypoint i to i + 1); n - 1 is the rest after the
+    last waypoint, where the coefficients hold the last point with zero velocity. Times only
+    move forward, so the segment changes when the time reaches the next boundary.
+    """
+
+    def __init__(self, trajectories: Sequence[Trajectory]) -> None:
+        count = len(trajectories)
+        self.size = np.array([len(tr.times) for tr in trajectories])
+        width = int(self.size.max())
+        self.times = np.full((count, width), math.inf)
+        self.points = np.zeros((count, width, 3))
+        # Per stage: k0..k3 of the three axes, the start of tau and the boundary time.
+        self.stage_k = np.zeros((count, width, 4, 3))
+        self.stage_start = np.zeros((count, width))
+        self.stage_end = np.full((count, width), math.inf)
+        # Per stage: the goal DM looks at, its slide to the following one, when, how long.
+        self.goal = np.zeros((count, width, 2))
+        self.goal_slide = np.zeros((count, width, 2))
+        self.goal_end = np.zeros((count, width))
+        self.goal_handover = np.ones((count, width))
+        for row, trajectory in enumerate(trajectories):
+            times, points = trajectory.times, trajectory.points
+            n = len(times)
+            self.times[row, :n] = times
+            self.points[row, :n] = points
+            for stage in range(n):
+                if stage < n - 1:
+                    for axis in range(3):
+                        self.stage_k[row, stage, :, axis] = trajectory.segment(
+                            stage, axis
+                        ).coefficients
+                    self.stage_start[row, stage] = times[stage]
+                    last = stage == n - 2
+                    boundary = times[stage + 1]
+                    self.stage_end[row, stage] = (
+                        math.nextafter(boundary, math.inf) if last else boundary
+                    )
+                else:
+                    self.stage_k[row, stage, 0] = points[-1]
+                    self.stage_start[row, stage] = times[-1]
+                index = min(stage + 1, n - 1)
+                goal = points[index]
+                self.goal[row, stage] = goal[:2]
+                if index + 1 < n:
+                    following = points[index + 1]
+                    end = times[index]
+                    self.goal_slide[row, stage] = (
+                        following[0] - goal[0],
+                        following[1] - goal[1],
+                    )
+                    self.goal_end[row, stage] = end
+                    self.goal_handover[row, stage] = min(
+                        GOAL_HANDOVER, (end - times[index - 1]) / 2.0
+                    )
+        self.stage = np.zeros(count, dtype=np.intp)
+        shape = (3, count)
+        self.k0, self.k1, self.k2, self.k3 = (np.zeros(shape) for _ in range(4))
+        self.k2x2, self.k3x3, self.k3x6 = (np.zeros(shape) for _ in range(3))
+        self.start, self.end = np.zeros(count), np.zeros(count)
+        self.goal_now, self.slide_now = np.zeros((2, count)), np.zeros((2, count))
+        self.goal_end_now, self.handover_now = np.zeros(count), np.zeros(count)
+        self._load(np.arange(count))
+
+    def _load(self, rows: Index) -> None:
+        """Take the coefficients and goal of the stage ``rows`` are now in."""
+        stage = self.stage[rows]
+        k = self.stage_k[rows, stage]  # (n, 4, 3)
+        self.k0[:, rows], self.k1[:, rows] = k[:, 0].T, k[:, 1].T
+        self.k2[:, rows], self.k3[:, rows] = k[:, 2].T, k[:, 3].T
+        self.k2x2[:, rows] = 2.0 * k[:, 2].T
+        self.k3x3[:, rows] = 3.0 * k[:, 3].T
+        self.k3x6[:, rows] = 6.0 * k[:, 3].T
+        self.start[rows] = self.stage_start[rows, stage]
+        self.end[rows] = self.stage_end[rows, stage]
+        self.goal_now[:, rows] = self.goal[rows, stage].T
+        self.slide_now[:, rows] = self.goal_slide[rows, stage].T
+        self.goal_end_now[rows] = self.goal_end[rows, stage]
+        self.handover_now[rows] = self.goal_handover[rows, stage]
+
+    def advance(self, t: Array) -> None:
+        """Move each scenario to the stage its time ``t`` falls in."""
+        while True:
+            rows = np.flatnonzero(t >= self.end)
+            if not len(rows):
+                return
+            self.stage[rows] += 1
+            self._load(rows)
+
+    def evaluate(self, t: Array) -> tuple[Array, Array, Array]:
+        """Position (3, n), velocity (3, n), acceleration (3, n): Trajectory.evaluate."""
+        tau = t - self.start
+        position = ((self.k3 * tau + self.k2) * tau + self.k1) * tau + self.k0
+        velocity = (self.k3x3 * tau + self.k2x2) * tau + self.k1
+        acceleration = self.k3x6 * tau + self.k2x2
+        return position, velocity, acceleration
+
+    def goal_at(self, t: Array) -> tuple[Array, Array]:
+        """ControlLaw._goal: p_j, sliding to p_j+1 over the segment's last GOAL_HANDOVER."""
+        share = _smoothstep((t - self.goal_end_now + self.handover_now) / self.handover_now)
+        return (
+            self.goal_now[0] + share * self.slide_now[0],
+            self.goal_now[1] + share * self.slide_now[1],
+        )
+
+
+# --- fuzzy inference, vectorised -------------------------------------------------------
+
+
+class _Fuzzy:
+    """:class:`FuzzyInference` on arrays of inputs (same rule base, same arithmetic)."""
+
+    def __init__(self, rule_base: RuleBase) -> None:
+        scalar = FuzzyInference(rule_base)
+        self.scalar = scalar
+        distance, beta = rule_base.inputs["min_distance"], rule_base.inputs["beta"]
+        self._distance_terms = [(t.a, t.b, t.c, t.d) for t in distance.terms.values()]
+        self._beta_terms = [(t.a, t.b, t.c, t.d) for t in beta.terms.values()]
+        self._distance_range = distance.universe
+        self._beta_range = beta.universe
+        distance_index = {name: i for i, name in enumerate(distance.terms)}
+        beta_index = {name: i for i, name in enumerate(beta.terms)}
+        output_index = {name: i for i, name in enumerate(OUTPUT_TERMS)}
+        self._rules = [
+            (
+                distance_index[rule.min_distance],
+                beta_index[rule.beta],
+                output_index[rule.k_T],
+                output_index[rule.k_C],
+            )
+            for rule in rule_base.rules
+        ]
+        self._peaks_t = rule_base.outputs["k_T"].peaks
+        self._peaks_c = rule_base.outputs["k_C"].peaks
+
+    def weights(self, min_distance: Array, beta: Array) -> tuple[Array, Array]:
+        low, high = self._distance_range
+        min_distance = np.where(
+            min_distance < low, low, np.where(min_distance > high, high, min_distance)
+        )
+        low, high = self._beta_range
+        beta = np.where(beta < low, low, np.where(beta > high, high, beta))
+        mu_distance = [_membership(min_distance, *term) for term in self._distance_terms]
+        mu_beta = [_membership(beta, *term) for term in self._beta_terms]
+        zero = np.zeros_like(beta)
+        fired_t = [zero, zero, zero]
+        fired_c = [zero, zero, zero]
+        for distance_i, beta_i, term_t, term_c in self._rules:
+            strength = _min(mu_distance[distance_i], mu_beta[beta_i])
+            fired_t[term_t] = _max(fired_t[term_t], strength)
+            fired_c[term_c] = _max(fired_c[term_c], strength)
+        return _centroid(self._peaks_t, fired_t), _centroid(self._peaks_c, fired_c)
+
+
+def _membership(x: Array, a: float, b: float, c: float, d: float) -> Array:
+    """:func:`controller.fuzzy._membership` (no division where a side is a shoulder)."""
+    rising = (x - a) / (b - a) if b > a else np.ones_like(x)
+    falling = (d - x) / (d - c) if d > c else np.ones_like(x)
+    value = np.where(x < b, rising, np.where(x <= c, 1.0, falling))
+    return np.where((x < a) | (x > d), 0.0, value)
+
+
+def _centroid(peaks: Sequence[float], fired: Sequence[Array]) -> Array:
+    """:func:`controller.fuzzy.centroid_of_partition`, the same sums in the same order."""
+    small, medium, big = peaks
+    low_width = medium - small
+    high_width = big - medium
+    whole = [_rising(w, 1.0) for w in fired]
+    piece_area, piece_moment = whole[0]
+    area = 0.0 + low_width * piece_area
+    moment = 0.0 + low_width * ((small - low_width) * piece_area + low_width * piece_moment)
+    piece_area, piece_moment = whole[2]
+    area = area + high_width * piece_area
+    moment = moment + high_width * (big * piece_area + high_width * (piece_area - piece_moment))
+    for start, width, falling, rising in ((small, low_width, 0, 1), (medium, high_width, 1, 2)):
+        piece_area, piece_moment = _falling_then_rising(
+            fired[falling], fired[rising], whole[falling], whole[rising]
+        )
+        area = area + width * piece_area
+        moment = moment + width * (start * piece_area + width * piece_moment)
+    return np.asarray(moment / area)
+
+
+def _rising(level: Array, upto: Array | float) -> tuple[Array, Array]:
+    """:func:`controller.fuzzy._rising`."""
+    full = upto <= level
+    return (
+        np.where(full, upto * upto * 0.5, level * (upto - level * 0.5)),
+        np.where(
+            full,
+            upto * upto * upto / 3.0,
+            level * level * level / 3.0 + level * (upto * upto - level * level) * 0.5,
+        ),
+    )
+
+
+def _falling_then_rising(
+    falling: Array,
+    rising: Array,
+    falling_whole: tuple[Array, Array],
+    rising_whole: tuple[Array, Array],
+) -> tuple[Array, Array]:
+    """:func:`controller.fuzzy._falling_then_rising`, given ``_rising(x, 1.0)`` of both."""
+    crossing = np.where(
+        (falling <= rising) & (falling <= 0.5),
+        falling,
+        np.where((rising < falling) & (rising <= 0.5), 1.0 - rising, 0.5),
+    )
+    full_area, full_moment = falling_whole
+    part_area, part_moment = _rising(falling, 1.0 - crossing)
+    falling_area = full_area - part_area
+    falling_moment = falling_area - (full_moment - part_moment)
+    full_area, full_moment = rising_whole
+    part_area, part_moment = _rising(rising, crossing)
+    return (
+        falling_area + full_area - part_area,
+        falling_moment + full_moment - part_moment,
+    )
+
+
+# --- the measures of runs, fed a block of ticks at a time --------------------------------
+
+
+class MeasureStream:
+    """The measures of :func:`sim.measures.compute_measures` for many runs, from their logs
+    fed in blocks of ticks (columns named as in the run log, shaped (ticks, runs)).
+
+    Only what the measures need is carried from block to block (minima, sums, the last
+    JERK_WINDOW - 1 rows, the length of a run of slow ticks), so a batch of thousands of
+    runs never holds a whole log. ``valid`` marks the ticks that count: a run that has
+    finished is still fed, but no longer counted.
+    """
+
+    COLUMNS = (
+        "t",
+        "clock",
+        "theta1",
+        "theta2",
+        "theta1_rate",
+        "theta2_rate",
+        "d3_rate",
+        "command_theta1",
+        "command_theta2",
+        "x",
+        "y",
+        "z",
+        "reference_speed",
+        "clearance",
+    )
+
+    def __init__(self, scenarios: Sequence[Scenario]) -> None:
+        first = scenarios[0]
+        self.robot = first.robot
+        self.period = first.controller.period
+        if any(s.robot != self.robot or s.controller.period != self.period for s in scenarios):
+            raise ValueError("runs measured together must share the robot and the rate")
+        count = len(scenarios)
+        half = JERK_WINDOW // 2
+        design = np.vander(np.arange(-half, half + 1, dtype=float), 4, increasing=True)
+        self._weights = np.linalg.pinv(design)[2] * 2.0 / self.period**2
+        self._counts = [len(s.waypoints) for s in scenarios]
+        self._waypoints = np.full((count, max(self._counts), 3), math.inf)
+        for row, scenario in enumerate(scenarios):
+            self._waypoints[row, : self._counts[row]] = [
+                (w.x, w.y, w.z) for w in scenario.waypoints
+            ]
+        self._last = np.array(self._counts) - 1
+        self._start = np.array([s.waypoints[0].t for s in scenarios])
+        self._end = np.array([s.waypoints[-1].t for s in scenarios])
+        self._before_last = np.array([s.waypoints[-2].t for s in scenarios])
+        self._threshold = np.array([STOP_SPEED_FRACTION * nominal_speed(s) for s in scenarios])
+        self._rows = np.arange(count)
+        self._min_clearance = np.full(count, math.inf)
+        self._misses = np.full((count, self._waypoints.shape[1]), math.inf)
+        self._peak = np.zeros(count)
+        self._square_sum = np.zeros(count)
+        self._windows = np.zeros(count, dtype=np.int64)
+        self._jump = np.zeros(count)
+        self._length = np.zeros(count)
+        self._completion = np.full(count, math.nan)
+        self._stops = np.zeros(count, dtype=np.int64)
+        self._slow_run = np.zeros(count, dtype=np.int64)
+        self._tail_velocity = np.zeros((0, count, 3))
+        self._tail_clock = np.zeros((0, count))
+        self._tail_position = np.zeros((0, count, 3))
+        self._tail_command = np.zeros((0, count, 2))
+
+    def update(self, columns: Mapping[str, Array], valid: Mask) -> None:
+        """Fold in one block: each column (ticks, runs); ``valid`` (ticks, runs)."""
+        t, clock = columns["t"], columns["clock"]
+        vx, vy = tcp_velocity(
+            self.robot,
+            columns["theta1"],
+            columns["theta2"],
+            columns["theta1_rate"],
+            columns["theta2_rate"],
+            np,
+        )
+        velocity = np.stack([vx, vy, -columns["d3_rate"]], axis=-1)
+        position = np.stack([columns["x"], columns["y"], columns["z"]], axis=-1)
+        command = np.stack([columns["command_theta1"], columns["command_theta2"]], axis=-1)
+
+        clearance = np.where(valid, columns["clearance"], math.inf)
+        self._min_clearance = np.minimum(self._min_clearance, clearance.min(axis=0))
+
+        self._fold_jerk(velocity, clock, valid)
+
+        speed = np.hypot(vx, vy)
+        watched = (
+            (columns["reference_speed"] >= self._threshold)
+            & (t >= self._start + STOP_EDGE_MARGIN)
+            & (t <= self._end - STOP_EDGE_MARGIN)
+        )
+        self._fold_stops(watched & (speed < self._threshold) & valid)
+
+        distance = np.linalg.norm(position[:, :, None, :] - self._waypoints[None], axis=-1)
+        self._misses = np.minimum(
+            self._misses, np.where(valid[:, :, None], distance, math.inf).min(axis=0)
+        )
+        to_last = distance[:, self._rows, self._last]
+        done = (to_last <= WAYPOINT_TOLERANCE) & (t >= self._before_last) & valid
+        found = np.isnan(self._completion) & done.any(axis=0)
+        if found.any():
+            first = np.argmax(done, axis=0)
+            self._completion[found] = clock[first[found], self._rows[found]] - self._start[found]
+
+        command = np.concatenate([self._tail_command, command])
+        position = np.concatenate([self._tail_position, position])
+        counted = valid[len(valid) - len(command) + 1 :]
+        if len(command) > 1:
+            jump = np.abs(np.diff(command, axis=0)).max(axis=-1)
+            self._jump = np.maximum(self._jump, np.where(counted, jump, 0.0).max(axis=0))
+            step = np.linalg.norm(np.diff(position, axis=0), axis=-1)
+            self._length += np.where(counted, step, 0.0).sum(axis=0)
+        self._tail_command, self._tail_position = command[-1:], position[-1:]
+
+    def _fold_jerk(self, velocity: Array, clock: Array, valid: Mask) -> None:
+        """Jerk from sim.measures.second_derivative's cubic fit, window by window."""
+        series = np.concatenate([self._tail_velocity, velocity])
+        clocks = np.concatenate([self._tail_clock, clock])
+        if len(series) >= JERK_WINDOW:
+            windows = np.lib.stride_tricks.sliding_window_view(series, JERK_WINDOW, axis=0)
+            jerk = np.linalg.norm(windows @ self._weights, axis=-1)
+            gaps = np.diff(clocks, axis=0) > 1.5 * self.period
+            spans_gap = np.lib.stride_tricks.sliding_window_view(gaps, JERK_WINDOW - 1, axis=0).any(
+                axis=-1
+            )
+            counted = valid[len(valid) - len(jerk) :] & ~spans_gap
+            self._peak = np.maximum(self._peak, np.where(counted, jerk, 0.0).max(axis=0))
+            self._square_sum += np.where(counted, jerk * jerk, 0.0).sum(axis=0)
+            self._windows += counted.sum(axis=0)
+        self._tail_velocity = series[-(JERK_WINDOW - 1) :]
+        self._tail_clock = clocks[-(JERK_WINDOW - 1) :]
+
+    def _fold_stops(self, slow: Mask) -> None:
+        """Count runs of at least STOP_MIN_TICKS slow ticks, across blocks."""
+        index = np.arange(len(slow))[:, None]
+        last_fast = np.maximum.accumulate(np.where(slow, -1, index), axis=0)
+        length = index - last_fast + np.where(last_fast < 0, self._slow_run, 0)
+        ends = slow.copy()
+        ends[:-1] &= ~slow[1:]
+        ends[-1] = False
+        self._stops += (ends & (length >= STOP_MIN_TICKS)).sum(axis=0)
+        self._slow_run = np.where(slow[-1], length[-1], 0)
+
+    def measures(self) -> list[Measures]:
+        """The measures of every run, in the order of the scenarios."""
+        stops = self._stops + (self._slow_run >= STOP_MIN_TICKS)
+        rms = np.sqrt(self._square_sum / np.maximum(self._windows, 1))
+        return [
+            Measures(
+                collision_free=bool(self._min_clearance[row] > 0.0),
+                min_clearance=float(self._min_clearance[row]),
+                stops=int(stops[row]),
+                peak_jerk=float(self._peak[row]),
+                rms_jerk=float(rms[row]),
+                max_command_jump=float(self._jump[row]),
+                completion_time=float(self._completion[row]),
+                path_length=float(self._length[row]),
+                waypoint_miss=tuple(float(m) for m in self._misses[row, : self._counts[row]]),
+            )
+            for row in self._rows
+        ]
+
+
+def nominal_speed(scenario: Scenario) -> float:
+    """The plan's mean planar speed, from its length over PLAN_SAMPLES points (as
+    compute_measures takes it, evaluated on arrays)."""
+    waypoints = scenario.waypoints
+    trajectory = plan_of(scenario)
+    samples = np.linspace(waypoints[0].t, waypoints[-1].t, 2001)
+    points = evaluate_positions(trajectory, samples)
+    length = float(np.sum(np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1)))
+    return length / (waypoints[-1].t - waypoints[0].t)
+
+
+def evaluate_positions(trajectory: Trajectory, times: Array) -> Array:
+    """``trajectory.evaluate(t)[0]`` for each of ``times`` (within the plan), bit for bit."""
+    starts = np.array(trajectory.times[:-1])
+    segment = np.searchsorted(starts, times, side="right") - 1
+    k = np.array(
+        [
+            [trajectory.segment(i, axis).coefficients for axis in range(trajectory.dims)]
+            for i in range(len(starts))
+        ]
+    )[segment]
+    tau = (times - starts[segment])[:, None]
+    return np.asarray(((k[..., 3] * tau + k[..., 2]) * tau + k[..., 1]) * tau + k[..., 0])
+
+
+# --- the batch ---------------------------------------------------------------------------
+
+
+class _Batch:
+    """The state of every scenario of a batch, advanced one tick per :meth:`step`."""
+
+    def __init__(
+        self, scenarios: Sequence[Scenario], mode: Mode, rule_base: RuleBase | None
+    ) -> None:
+        first = scenarios[0]
+        for scenario in scenarios:
+            if (scenario.robot, scenario.controller, scenario.plant) != (
+                first.robot,
+                first.controller,
+                first.plant,
+            ):
+                raise ValueError(
+                    f"scenario {scenario.name!r}: a batch shares the robot, gains and plant"
+                )
+        self.mode = mode
+        self.robot, self.config, self.plant = first.robot, first.controller, first.plant
+        self.period = self.config.period
+        count = len(scenarios)
+        self.count = count
+        self.ticks = np.array([round(s.duration / self.period) + 1 for s in scenarios])
+        self.start = np.array([s.waypoints[0].t for s in scenarios])
+        self.plans = _Plans([plan_of(s) for s in scenarios])
+        obstacles = [s.obstacle for s in scenarios]
+        self.obstacle = _Sections(obstacles)
+        self.aim = _Sections(
+            [o.grown(self.config.ao_pass_margin) if o is not None else None for o in obstacles]
+        )
+        self.fuzzy = _Fuzzy(rule_base or RuleBase.load())
+        nothing = absent(self.config.sensing_range)
+        self.k_t_without_obstacle = self.fuzzy.scalar.weights(nothing.min_distance, nothing.beta)[0]
+        self.position = np.array([s.initial_joints() for s in scenarios]).T.copy()
+        self.velocity = np.zeros((3, count))
+        points = self.plans.points
+        self.heading = np.array(
+            [math.atan2(p[1][1] - p[0][1], p[1][0] - p[0][0]) for p in points[:, :2].tolist()]
+        )
+        self.side = np.zeros(count)
+        self.previous = np.zeros((3, count))
+        robot = self.robot
+        self.speed_limits = np.array([[limit] for limit in robot.speed_limits])
+        self.step_limits = np.array([[limit * self.period] for limit in robot.accel_limits])
+        self.joint_low = np.array([[limit] for limit in robot.joint_min])
+        self.joint_high = np.array([[limit] for limit in robot.joint_max])
+        substep = self.period / self.plant.substeps
+        self.substep = substep
+        self.blend = 1.0 - math.exp(-substep / self.plant.time_constant)
+        self.max_change = np.array([[limit * substep] for limit in robot.accel_limits])
+
+    def step(self, tick: int) -> dict[str, Array]:
+        """One tick for every scenario; the log columns the measures need."""
+        config, robot = self.config, self.robot
+        t = self.start + tick * self.period
+        position = WIRE_POSITION(self.position)
+        velocity = WIRE_VELOCITY(self.velocity)
+        theta1, theta2, d3 = position
+
+        # forward()
+        theta12 = theta1 + theta2
+        cos1, sin1, cos12, sin12 = np.cos(theta1), np.sin(theta1), np.cos(theta12), np.sin(theta12)
+        px = robot.a1 * cos1 + robot.a2 * cos12
+        py = robot.a1 * sin1 + robot.a2 * sin12
+        pz = robot.d0 - d3
+
+        plans = self.plans
+        plans.advance(t)
+        reference, reference_velocity, reference_acceleration = plans.evaluate(t)
+        goal_x, goal_y = plans.goal_at(t)
+        measurement = self._measure(px, py, pz, goal_x, goal_y)
+        present, clearance, d_left, d_right, beta, ahead = measurement
+        min_distance = _min(d_left, d_right)
+
+        tracking_v, tracking_omega, planned_speed = self._plan_tracking(
+            px, py, reference, reference_velocity, reference_acceleration
+        )
+        avoiding_v, avoiding_omega = self._avoid(measurement, min_distance, px, py)
+        k_t, k_c = self._weights(present, clearance, min_distance, beta, ahead)
+        total = k_t + k_c
+        blended_v = (k_t * tracking_v + k_c * avoiding_v) / total
+        blended_omega = (k_t * tracking_omega + k_c * avoiding_omega) / total
+
+        vx = blended_v * np.cos(self.heading)
+        vy = blended_v * np.sin(self.heading)
+        vz = reference_velocity[2] + config.height_gain * (reference[2] - pz)
+        rate1, rate2 = self._joint_rates(theta2, sin1, cos1, sin12, cos12, vx, vy)
+        command = self._limit(np.stack([rate1, rate2, -vz]))
+
+        self.heading = _wrap(self.heading + blended_omega * self.period)
+        self.previous = command
+        self._advance_plant(WIRE_COMMAND(command))
+        return {
+            "t": t,
+            "clock": t,
+            "theta1": theta1,
+            "theta2": theta2,
+            "theta1_rate": velocity[0],
+            "theta2_rate": velocity[1],
+            "d3_rate": velocity[2],
+            "command_theta1": command[0],
+            "command_theta2": command[1],
+            "x": px,
+            "y": py,
+            "z": pz,
+            "reference_speed": planned_speed,
+            "clearance": clearance,
+        }
+
+    def _measure(
+        self, px: Array, py: Array, pz: Array, goal_x: Array, goal_y: Array
+    ) -> tuple[Mask, Array, Array, Array, Array, Array]:
+        """Module DM (controller.obstacle.measure): present, clearance, d_L, d_R, beta, ahead."""
+        obstacle = self.obstacle
+        sensing_range = self.config.sensing_range
+        lx, ly = obstacle.to_local(px, py)
+        clearance, nearest_x, nearest_y = obstacle.nearest_point(lx, ly)
+        present = ~(pz >= obstacle.top) & ~(clearance >= sensing_range)
+        gx, gy = goal_x - px, goal_y - py
+        goal_distance = _norm2(gx, gy)
+        on_goal = goal_distance < 1e-9
+        if on_goal.any():
+            gx = np.where(on_goal, obstacle.x - px, gx)
+            gy = np.where(on_goal, obstacle.y - py, gy)
+            goal_distance = np.where(on_goal, _max(_norm2(gx, gy), 1e-9), goal_distance)
+        near = _min(_max(clearance, 0.0), sensing_range)
+        crosses, entry, exit_ = obstacle.line_crossings(lx, ly, px + gx, py + gy)
+        other = _max(_min(_min(np.abs(entry), np.abs(exit_)) * goal_distance, sensing_range), near)
+        other = np.where(crosses, other, sensing_range)
+        to_nearest_x, to_nearest_y = nearest_x - px, nearest_y - py
+        side = gx * to_nearest_y - gy * to_nearest_x
+        span = _norm2(to_nearest_x, to_nearest_y) * goal_distance
+        ahead = np.where(
+            span > 0.0,
+            (gx * to_nearest_x + gy * to_nearest_y) / np.where(span > 0.0, span, 1.0),
+            1.0,
+        )
+        left_side = side >= 0.0
+        d_left = np.where(left_side, near, other)
+        d_right = np.where(left_side, other, near)
+        outside, left_x, left_y, right_x, right_y = obstacle.tangent_points(px, py, lx, ly)
+        goal_angle = np.arctan2(gy, gx)
+        left = _wrap(np.arctan2(left_y - py, left_x - px) - goal_angle)
+        right = _wrap(np.arctan2(right_y - py, right_x - px) - goal_angle)
+        beta = _min(np.abs(left), np.abs(right))
+        beta = np.where((left > 0.0) & (right < 0.0), -beta, beta)
+        beta = np.where(outside, beta, -math.pi / 2.0)
+        return (
+            present,
+            np.where(present, clearance, math.inf),
+            np.where(present, d_left, sensing_range),
+            np.where(present, d_right, sensing_range),
+            np.where(present, beta, math.pi),
+            np.where(present, ahead, -1.0),
+        )
+
+    def _plan_tracking(
+        self,
+        px: Array,
+        py: Array,
+        reference: Array,
+        reference_velocity: Array,
+        reference_acceleration: Array,
+    ) -> tuple[Array, Array, Array]:
+        """PT (controller.behaviours.plan_tracking): v, omega, and the planned speed."""
+        config = self.config
+        error_x, error_y = reference[0] - px, reference[1] - py
+        vx, vy = reference_velocity[0], reference_velocity[1]
+        planned_speed = _norm2(vx, vy)
+        at_rest = planned_speed < PLANNED_REST_SPEED
+        divisor = np.where(at_rest, 1.0, planned_speed)
+        along_x, along_y = vx / divisor, vy / divisor
+        lag = error_x * along_x + error_y * along_y
+        offset = along_x * error_y - along_y * error_x
+        speed = _min(_max(planned_speed + config.position_gain * lag, 0.0), config.speed_max)
+        target = np.arctan2(vy, vx) + np.arctan2(config.position_gain * offset, planned_speed)
+        ax, ay = reference_acceleration[0], reference_acceleration[1]
+        feedforward = (vx * ay - vy * ax) / (divisor * divisor)
+        error = _wrap(target - self.heading)
+        v = speed * _max(np.cos(error), 0.0)
+        omega = feedforward + config.heading_gain * error
+        if at_rest.any():
+            distance = _norm2(error_x, error_y)
+            error = _wrap(np.arctan2(error_y, error_x) - self.heading)
+            speed = _min(config.position_gain * distance, config.speed_max)
+            still = distance < 1e-9
+            v = np.where(at_rest, np.where(still, 0.0, speed * _max(np.cos(error), 0.0)), v)
+            omega = np.where(at_rest, np.where(still, 0.0, config.heading_gain * error), omega)
+        return v, omega, planned_speed
+
+    def _avoid(
+        self,
+        measurement: tuple[Mask, Array, Array, Array, Array, Array],
+        min_distance: Array,
+        px: Array,
+        py: Array,
+    ) -> tuple[Array, Array]:
+        """AO with its TL/TR choice (ControlLaw._avoid, behaviours.avoid_obstacle)."""
+        present, clearance, d_left, d_right, _, ahead = measurement
+        engaged = present & ~((ahead <= AHEAD_NONE) & (clearance > 0.0))
+        chosen = np.where(d_left >= d_right, float(TURN_LEFT), float(TURN_RIGHT))
+        self.side = np.where(engaged, np.where(self.side == 0.0, chosen, self.side), 0.0)
+        v, omega = np.zeros(self.count), np.zeros(self.count)
+        rows = np.flatnonzero(engaged)
+        if not len(rows):
+            return v, omega
+        config = self.config
+        aim = self.aim.take(rows)
+        side, heading = self.side[rows], self.heading[rows]
+        x, y = px[rows], py[rows]
+        lx, ly = aim.to_local(x, y)
+        outside, left_x, left_y, right_x, right_y = aim.tangent_points(x, y, lx, ly)
+        left_hand = side == TURN_LEFT
+        edge_x = np.where(left_hand, left_x, right_x)
+        edge_y = np.where(left_hand, left_y, right_y)
+        edge_angle = np.arctan2(edge_y - y, edge_x - x)
+        inside = np.flatnonzero(~outside)
+        if len(inside):
+            part = aim.take(inside)
+            depth, nearest_x, nearest_y = part.nearest_point(lx[inside], ly[inside])
+            ix, iy, iside = x[inside], y[inside], side[inside]
+            normal_x, normal_y = nearest_x - ix, nearest_y - iy
+            flip = depth >= 0.0
+            normal_x = np.where(flip, -normal_x, normal_x)
+            normal_y = np.where(flip, -normal_y, normal_y)
+            zero = (normal_x == 0.0) & (normal_y == 0.0)
+            normal_x = np.where(zero, ix - part.x, normal_x)
+            normal_y = np.where(zero, iy - part.y, normal_y)
+            along_boundary = np.arctan2(normal_y, normal_x) - iside * math.pi / 2.0
+            tilt = _min(1.0, np.abs(depth) / _max(part.inflation, 1e-3)) * math.pi / 4.0
+            edge_angle[inside] = along_boundary + iside * tilt
+        beta = side * _wrap(edge_angle - heading)
+        distance = _max(min_distance[rows], 1e-3)
+        along = distance * np.cos(beta)
+        v[rows] = config.ao_speed_min + (config.ao_speed_max - config.ao_speed_min) * _tanh(
+            _max(along, 0.0) / config.ao_speed_distance
+        )
+        omega[rows] = side * (
+            config.ao_turn_max * _tanh(np.sin(beta) / distance / config.ao_turn_scale)
+        )
+        return v, omega
+
+    def _weights(
+        self, present: Mask, clearance: Array, min_distance: Array, beta: Array, ahead: Array
+    ) -> tuple[Array, Array]:
+        """k_T and k_C of the batch's coordinator (controller.coordination)."""
+        if self.mode is Mode.CONVENTIONAL:
+            switched = present & (ahead > 0.0) & (clearance < self.config.switch_distance)
+            return np.where(switched, 0.0, 1.0), np.where(switched, 1.0, 0.0)
+        k_t = np.full(self.count, self.k_t_without_obstacle)
+        k_c = np.zeros(self.count)
+        rows = np.flatnonzero(present)
+        if len(rows):
+            sensing_range = self.config.sensing_range
+            distance = min_distance[rows]
+            fuzzy_t, fuzzy_c = self.fuzzy.weights(distance, beta[rows])
+            half = sensing_range / 2.0
+            relevance = _smoothstep((sensing_range - distance) / half)
+            fading = _smoothstep((ahead[rows] - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
+            relevance = np.where(clearance[rows] > 0.0, relevance * fading, relevance)
+            k_t[rows] = fuzzy_t
+            k_c[rows] = fuzzy_c * relevance
+        return k_t, k_c
+
+    def _joint_rates(
+        self,
+        theta2: Array,
+        sin1: Array,
+        cos1: Array,
+        sin12: Array,
+        cos12: Array,
+        vx: Array,
+        vy: Array,
+    ) -> tuple[Array, Array]:
+        """protocol.kinematics.joint_rates_for, reusing forward()'s sines and cosines."""
+        robot, damping = self.robot, self.config.damping
+        a2s12 = robot.a2 * sin12
+        a2c12 = robot.a2 * cos12
+        j11 = -robot.a1 * sin1 - a2s12
+        j12 = -a2s12
+        j21 = robot.a1 * cos1 + a2c12
+        j22 = a2c12
+        s2 = np.sin(theta2)
+        ratio = s2 / DAMPING_S2_REF
+        lam2 = np.where(np.abs(ratio) < 1.0, damping * damping * (1.0 - ratio * ratio), 0.0)
+        det_j = robot.a1 * robot.a2 * s2
+        denominator = det_j * det_j + lam2 * (j11 * j11 + j12 * j12 + j21 * j21 + j22 * j22 + lam2)
+        return (
+            (det_j * (j22 * vx - j12 * vy) + lam2 * (j11 * vx + j21 * vy)) / denominator,
+            (det_j * (j11 * vy - j21 * vx) + lam2 * (j12 * vx + j22 * vy)) / denominator,
+        )
+
+    def _limit(self, wanted: Array) -> Array:
+        """ControlLaw._limit: one speed scale, then one acceleration scale, on all joints."""
+        previous = self.previous
+        scale = np.ones(self.count)
+        size = np.abs(wanted)
+        for joint in range(3):
+            limit = self.speed_limits[joint, 0]
+            scale = np.where(size[joint] * scale > limit, limit / size[joint], scale)
+        scaled = wanted * scale
+        step_scale = np.ones(self.count)
+        change = np.abs(scaled - previous)
+        for joint in range(3):
+            limit = self.step_limits[joint, 0]
+            step_scale = np.where(
+                change[joint] * step_scale > limit, limit / change[joint], step_scale
+            )
+        return np.asarray(previous + (scaled - previous) * step_scale)
+
+    def _advance_plant(self, command: Array) -> None:
+        """PlantModel.advance over one period, all joints of all scenarios at once."""
+        target = _min(_max(command, -self.speed_limits), self.speed_limits)
+        position, velocity = self.position, self.velocity
+        low, high = self.joint_low, self.joint_high
+        for _ in range(self.plant.substeps):
+            change = (target - velocity) * self.blend
+            change = _min(_max(change, -self.max_change), self.max_change)
+            new_velocity = velocity + change
+            new_position = position + 0.5 * (velocity + new_velocity) * self.substep
+            stopped = (new_position < low) | (new_position > high)
+            if stopped.any():
+                new_position = np.where(stopped, _min(_max(new_position, low), high), new_position)
+                new_velocity = np.where(stopped, 0.0, new_velocity)
+            position, velocity = new_position, new_velocity
+        self.position, self.velocity = position, velocity
+
+
+def simulate_batch(
+    scenarios: Sequence[Scenario],
+    mode: Mode | None = None,
+    rule_base: RuleBase | None = None,
+    on_block: Callable[[int], None] | None = None,
+) -> list[Measures]:
+    """The measures of each scenario's run, as :func:`sim.simulation.simulate` gives them.
+
+    ``mode`` (else the scenarios' own, which must then agree) for the whole batch;
+    ``rule_base`` for the fuzzy coordinator (else Table 2's); ``on_block(ticks)`` is told of
+    each block of ticks done (for a progress bar).
+    """
+    if not scenarios:
+        return []
+    if mode is None:
+        modes = {s.mode for s in scenarios}
+        if len(modes) != 1:
+            raise ValueError("scenarios of several modes: give the batch's mode")
+        mode = modes.pop()
+    with np.errstate(all="ignore"):
+        batch = _Batch(scenarios, mode, rule_base)
+        stream = MeasureStream(scenarios)
+        total = int(batch.ticks.max())
+        names = MeasureStream.COLUMNS
+        for block_start in range(0, total, BLOCK_TICKS):
+            length = min(BLOCK_TICKS, total - block_start)
+            block = {name: np.empty((length, batch.count)) for name in names}
+            for offset in range(length):
+                row = batch.step(block_start + offset)
+                for name in names:
+                    block[name][offset] = row[name]
+            ticks = np.arange(block_start, block_start + length)[:, None]
+            stream.update(block, ticks < batch.ticks)
+            if on_block is not None:
+                on_block(length)
+    return stream.measures()

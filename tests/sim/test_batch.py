@@ -1,0 +1,185 @@
+"""The batch simulator against the scalar simulation it vectorises, scenario by scenario."""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import fields, replace
+
+import numpy as np
+import pytest
+
+from controller.planner import check_plan
+from protocol.errors import ConfigError
+from protocol.geometry import EllipticCylinder
+from protocol.kinematics import Elbow
+from protocol.messages import on_the_wire_command, on_the_wire_state
+from protocol.scenario import Mode, Scenario, Waypoint, check_scenario, load_scenario
+from sim.batch import (
+    WIRE_COMMAND,
+    WIRE_POSITION,
+    WIRE_VELOCITY,
+    MeasureStream,
+    _max,
+    _min,
+    simulate_batch,
+)
+from sim.measures import Measures, compute_measures
+from sim.simulation import simulate
+
+TOLERANCE = 1e-9
+
+
+def random_scenarios(count: int, seed: int) -> list[Scenario]:
+    """Throwaway random scenarios: 2-6 reachable waypoints, an obstacle near a segment (or
+    none, or one low enough to pass over), each checked as a scenario file is."""
+    rng = random.Random(seed)
+    scenarios: list[Scenario] = []
+    while len(scenarios) < count:
+        points = []
+        for _ in range(rng.randint(2, 6)):
+            radius, angle = rng.uniform(0.3, 0.56), math.radians(rng.uniform(-80.0, 80.0))
+            points.append((radius * math.cos(angle), radius * math.sin(angle)))
+        t, waypoints = 0.0, []
+        for index, (x, y) in enumerate(points):
+            if index:
+                t += max(0.5, math.dist((x, y), points[index - 1]) / rng.uniform(0.2, 0.35))
+            waypoints.append(Waypoint(t, x, y, rng.uniform(0.2, 0.35)))
+        segment = rng.randrange(len(points) - 1)
+        share = rng.uniform(0.3, 0.7)
+        (x0, y0), (x1, y1) = points[segment], points[segment + 1]
+        long_diameter = rng.uniform(0.03, 0.12)
+        kind = rng.random()
+        obstacle = (
+            None
+            if kind < 0.1
+            else EllipticCylinder(
+                x0 + share * (x1 - x0) + rng.uniform(-0.03, 0.03),
+                y0 + share * (y1 - y0) + rng.uniform(-0.03, 0.03),
+                long_diameter,
+                long_diameter * rng.uniform(0.4, 1.0),
+                0.1 if kind < 0.2 else 0.45,
+                rng.uniform(-math.pi, math.pi),
+                0.02,
+            )
+        )
+        scenario = Scenario(
+            f"random-{seed}-{len(scenarios)}",
+            tuple(waypoints),
+            obstacle,
+            elbow=Elbow.DOWN,
+            settle_time=rng.uniform(0.3, 1.0),
+        )
+        try:
+            check_scenario(scenario)
+            check_plan(scenario)
+        except ConfigError:
+            continue
+        scenarios.append(scenario)
+    return scenarios
+
+
+def assert_same(batch: Measures, scalar: Measures, name: str) -> None:
+    """Equal to TOLERANCE (relative, or absolute near zero); counts and flags exactly."""
+    for field in fields(Measures):
+        got, expected = getattr(batch, field.name), getattr(scalar, field.name)
+        where = f"{name}: {field.name}"
+        if isinstance(expected, bool | int):
+            assert got == expected, where
+        elif isinstance(expected, tuple):
+            assert len(got) == len(expected), where
+            np.testing.assert_allclose(got, expected, rtol=TOLERANCE, atol=TOLERANCE, err_msg=where)
+        elif math.isnan(expected):
+            assert math.isnan(got), where
+        else:
+            assert got == pytest.approx(expected, rel=TOLERANCE, abs=TOLERANCE), where
+
+
+@pytest.fixture(scope="module")
+def study() -> list[Scenario]:
+    packaged = [load_scenario(name) for name in ("reference", "long_wall", "over_the_top")]
+    return packaged + random_scenarios(13, seed=11)
+
+
+@pytest.mark.parametrize("mode", list(Mode))
+def test_batch_equals_scalar_simulation_on_sampled_scenarios(
+    study: list[Scenario], mode: Mode
+) -> None:
+    batch = simulate_batch(study, mode)
+    assert len(batch) == len(study)
+    sampled = [0, *random.Random(mode.value).sample(range(1, len(study)), 4)]
+    for index in sampled:
+        assert_same(batch[index], simulate(study[index], mode).measures, study[index].name)
+
+
+def test_measures_fed_in_blocks_equal_those_of_the_whole_log() -> None:
+    run = simulate(load_scenario("reference"), Mode.CONVENTIONAL)
+    results = []
+    for block in (len(run.log), 7, 1):
+        stream = MeasureStream([run.scenario])
+        for start in range(0, len(run.log), block):
+            columns = {
+                name: run.log[name][start : start + block, None] for name in MeasureStream.COLUMNS
+            }
+            stream.update(columns, np.ones((len(columns["t"]), 1), dtype=bool))
+        results.append(stream.measures()[0])
+    for result in results:
+        assert_same(result, run.measures, f"blocks of {block}")
+    assert_same(results[0], compute_measures(run.scenario, run.log), "whole log")
+
+
+def test_ticks_past_a_runs_end_are_not_counted() -> None:
+    run = simulate(load_scenario("pass_left"), Mode.FUZZY)
+    stream = MeasureStream([run.scenario])
+    columns = {name: run.log[name][:, None] for name in MeasureStream.COLUMNS}
+    extended = {
+        name: np.concatenate([values, values[-200:] * 3.0]) for name, values in columns.items()
+    }
+    valid = np.arange(len(extended["t"]))[:, None] < len(run.log)
+    stream.update(extended, valid)
+    assert_same(stream.measures()[0], run.measures, "extended")
+
+
+def test_numpy_operations_used_agree_with_math_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-7.0, 7.0, 20_000), rng.uniform(-2.0, 2.0, 20_000)
+    unit = rng.uniform(-1.0, 1.0, 20_000)
+    for name, ours, theirs, arguments in (
+        ("sin", np.sin, math.sin, (x,)),
+        ("cos", np.cos, math.cos, (x,)),
+        ("atan2", np.arctan2, math.atan2, (y, x)),
+        ("acos", np.arccos, math.acos, (unit,)),
+        ("exp", np.exp, math.exp, (-np.abs(x),)),
+        ("sqrt", np.sqrt, math.sqrt, (np.abs(x),)),
+        ("%", np.remainder, lambda a, b: a % b, (x * 3.0, np.full_like(x, 2.0 * math.pi))),
+    ):
+        expected = [
+            theirs(*values) for values in zip(*(a.tolist() for a in arguments), strict=True)
+        ]
+        assert ours(*arguments).tolist() == expected, name
+    # The wire as the codec quantises, ties to even included.
+    positions = np.stack([x / 3.0, y, np.abs(y) / 5.0])
+    positions[0, :4] = [0.0000005, 0.0000015, -0.0000025, 0.0000035]
+    rates = np.stack([x, y * 5.0, y / 2.0])
+    rates[0, :3] = [0.0005, 0.0015, -0.0025]
+    for column in range(200):
+        position, velocity = on_the_wire_state(tuple(positions[:, column]), tuple(rates[:, column]))
+        assert WIRE_POSITION(positions[:, column : column + 1])[:, 0].tolist() == list(position)
+        assert WIRE_VELOCITY(rates[:, column : column + 1])[:, 0].tolist() == list(velocity)
+        command = on_the_wire_command(tuple(rates[:, column]))
+        assert WIRE_COMMAND(rates[:, column : column + 1])[:, 0].tolist() == list(command)
+    # Ties of min and max go to the first argument, as in Python, also for signed zeros.
+    for size in (1, 3, 100):
+        first, second = np.full(size, 0.0), np.full(size, -0.0)
+        assert np.signbit(_min(first, second)).tolist() == [False] * size  # min(0.0, -0.0)
+        assert np.signbit(_max(second, first)).tolist() == [True] * size  # max(-0.0, 0.0)
+        assert math.copysign(1.0, min(0.0, -0.0)) > 0 > math.copysign(1.0, max(-0.0, 0.0))
+
+
+def test_a_batch_shares_its_configuration() -> None:
+    scenario = load_scenario("reference")
+    other = replace(scenario, controller=replace(scenario.controller, sensing_range=0.1))
+    with pytest.raises(ValueError, match="shares"):
+        simulate_batch([scenario, other], Mode.FUZZY)
+    with pytest.raises(ValueError, match="mode"):
+        simulate_batch([scenario, scenario.with_mode(Mode.CONVENTIONAL)])
