@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -588,23 +589,25 @@ class MeasureStream:
             jump = np.abs(np.diff(command, axis=0)).max(axis=-1)
             self._jump = np.maximum(self._jump, np.where(counted, jump, 0.0).max(axis=0))
             step = np.linalg.norm(np.diff(position, axis=0), axis=-1)
-            self._length += np.where(counted, step, 0.0).sum(axis=0)
+            self._length += _running_sum(np.where(counted, step, 0.0))
         self._tail_command, self._tail_position = command[-1:], position[-1:]
 
     def _fold_jerk(self, velocity: Array, clock: Array, valid: Mask) -> None:
-        """Jerk from sim.measures.second_derivative's cubic fit, window by window."""
+        """Jerk from sim.measures.second_derivative's cubic fit, window by window (the weighted
+        sum written out, in a fixed order)."""
         series = np.concatenate([self._tail_velocity, velocity])
         clocks = np.concatenate([self._tail_clock, clock])
         if len(series) >= JERK_WINDOW:
-            windows = np.lib.stride_tricks.sliding_window_view(series, JERK_WINDOW, axis=0)
-            jerk = np.linalg.norm(windows @ self._weights, axis=-1)
+            count = len(series) - JERK_WINDOW + 1
+            fitted = self._weights[0] * series[:count]
+            for lag in range(1, JERK_WINDOW):
+                fitted = fitted + self._weights[lag] * series[lag : lag + count]
+            jerk = np.linalg.norm(fitted, axis=-1)
             gaps = np.diff(clocks, axis=0) > 1.5 * self.period
-            spans_gap = np.lib.stride_tricks.sliding_window_view(gaps, JERK_WINDOW - 1, axis=0).any(
-                axis=-1
-            )
-            counted = valid[len(valid) - len(jerk) :] & ~spans_gap
+            spans_gap = np.lib.stride_tricks.sliding_window_view(gaps, JERK_WINDOW - 1, axis=0)
+            counted = valid[len(valid) - count :] & ~spans_gap.any(axis=-1)
             self._peak = np.maximum(self._peak, np.where(counted, jerk, 0.0).max(axis=0))
-            self._square_sum += np.where(counted, jerk * jerk, 0.0).sum(axis=0)
+            self._square_sum += _running_sum(np.where(counted, jerk * jerk, 0.0))
             self._windows += counted.sum(axis=0)
         self._tail_velocity = series[-(JERK_WINDOW - 1) :]
         self._tail_clock = clocks[-(JERK_WINDOW - 1) :]
@@ -638,6 +641,12 @@ class MeasureStream:
             )
             for row in self._rows
         ]
+
+
+def _running_sum(values: Array) -> Array:
+    """Sums over axis 0 added in order, whatever the array's layout (``sum`` adds pairwise
+    along a contiguous axis): a run's measures do not depend on the batch it ran in."""
+    return np.asarray(np.cumsum(values, axis=0)[-1])
 
 
 def nominal_speed(scenario: Scenario) -> float:
@@ -774,6 +783,7 @@ class _Batch:
             "z": pz,
             "reference_speed": planned_speed,
             "clearance": clearance,
+            "k_c": k_c,
         }
 
     def _measure(
@@ -995,17 +1005,27 @@ class _Batch:
         self.position, self.velocity = position, velocity
 
 
+@dataclass(frozen=True, slots=True)
+class BatchRun:
+    """One scenario's run in a batch: its measures, and how far AO ever took over."""
+
+    measures: Measures
+    peak_k_c: float
+    """The largest k_C of the run (1 when the conventional switch flipped to AO)."""
+
+
 def simulate_batch(
     scenarios: Sequence[Scenario],
     mode: Mode | None = None,
     rule_base: RuleBase | None = None,
     on_block: Callable[[int], None] | None = None,
-) -> list[Measures]:
-    """The measures of each scenario's run, as :func:`sim.simulation.simulate` gives them.
+) -> list[BatchRun]:
+    """Each scenario's run as :func:`sim.simulation.simulate` gives it, all at once.
 
     ``mode`` (else the scenarios' own, which must then agree) for the whole batch;
-    ``rule_base`` for the fuzzy coordinator (else Table 2's); ``on_block(ticks)`` is told of
-    each block of ticks done (for a progress bar).
+    ``rule_base`` for the fuzzy coordinator (else Table 2's); ``on_block(n)`` is told of
+    every n scenario-ticks done (for a progress bar). A run's results do not depend on the
+    other scenarios of its batch.
     """
     if not scenarios:
         return []
@@ -1017,17 +1037,24 @@ def simulate_batch(
     with np.errstate(all="ignore"):
         batch = _Batch(scenarios, mode, rule_base)
         stream = MeasureStream(scenarios)
+        peak_k_c = np.zeros(batch.count)
         total = int(batch.ticks.max())
         names = MeasureStream.COLUMNS
         for block_start in range(0, total, BLOCK_TICKS):
             length = min(BLOCK_TICKS, total - block_start)
             block = {name: np.empty((length, batch.count)) for name in names}
             for offset in range(length):
-                row = batch.step(block_start + offset)
+                tick = block_start + offset
+                row = batch.step(tick)
                 for name in names:
                     block[name][offset] = row[name]
+                peak_k_c = np.where(tick < batch.ticks, _max(peak_k_c, row["k_c"]), peak_k_c)
             ticks = np.arange(block_start, block_start + length)[:, None]
-            stream.update(block, ticks < batch.ticks)
+            valid = ticks < batch.ticks
+            stream.update(block, valid)
             if on_block is not None:
-                on_block(length)
-    return stream.measures()
+                on_block(int(valid.sum()))
+    return [
+        BatchRun(measures, float(peak))
+        for measures, peak in zip(stream.measures(), peak_k_c, strict=True)
+    ]

@@ -109,7 +109,16 @@ def test_batch_equals_scalar_simulation_on_sampled_scenarios(
     assert len(batch) == len(study)
     sampled = [0, *random.Random(mode.value).sample(range(1, len(study)), 4)]
     for index in sampled:
-        assert_same(batch[index], simulate(study[index], mode).measures, study[index].name)
+        run = simulate(study[index], mode)
+        assert_same(batch[index].measures, run.measures, study[index].name)
+        assert batch[index].peak_k_c == pytest.approx(run.log["k_c"].max(), rel=TOLERANCE)
+
+
+def test_a_run_does_not_depend_on_the_rest_of_its_batch(study: list[Scenario]) -> None:
+    short = sorted(study, key=lambda scenario: scenario.duration)[:4]
+    alone = simulate_batch(short[:1], Mode.CONVENTIONAL)
+    together = simulate_batch(short, Mode.CONVENTIONAL)
+    assert together[0] == alone[0]
 
 
 def test_measures_fed_in_blocks_equal_those_of_the_whole_log() -> None:
