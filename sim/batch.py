@@ -50,6 +50,9 @@ Index = npt.NDArray[np.intp]
 
 BLOCK_TICKS = 128
 """Ticks of log kept before they are folded into the measures (memory: 14 columns of this)."""
+REACH_MARGIN = 1e-6
+"""m: DM measures within the sensing range plus the long semi-axis (plus this, for rounding)
+of an obstacle's centre; farther, the clearance exceeds the range and DM finds nothing."""
 NEWTON_ITERATIONS = 64
 """As in :func:`protocol.geometry._ellipse_distance`."""
 
@@ -189,6 +192,45 @@ class _Sections:
         return crosses, (-half_b - root) / quad_a, (-half_b + root) / quad_a
 
 
+def _measure(
+    obstacle: _Sections, sensing_range: float, px: Array, py: Array, goal_x: Array, goal_y: Array
+) -> tuple[Mask, Array, Array, Array, Array, Array]:
+    """controller.obstacle.measure below the obstacle's top: present (within the sensing
+    range), clearance, d_L, d_R, beta, ahead (meaningful where present)."""
+    lx, ly = obstacle.to_local(px, py)
+    clearance, nearest_x, nearest_y = obstacle.nearest_point(lx, ly)
+    present = ~(clearance >= sensing_range)
+    gx, gy = goal_x - px, goal_y - py
+    goal_distance = _norm2(gx, gy)
+    on_goal = goal_distance < 1e-9
+    if on_goal.any():
+        gx = np.where(on_goal, obstacle.x - px, gx)
+        gy = np.where(on_goal, obstacle.y - py, gy)
+        goal_distance = np.where(on_goal, _max(_norm2(gx, gy), 1e-9), goal_distance)
+    near = _min(_max(clearance, 0.0), sensing_range)
+    crosses, entry, exit_ = obstacle.line_crossings(lx, ly, px + gx, py + gy)
+    other = _max(_min(_min(np.abs(entry), np.abs(exit_)) * goal_distance, sensing_range), near)
+    other = np.where(crosses, other, sensing_range)
+    to_nearest_x, to_nearest_y = nearest_x - px, nearest_y - py
+    side = gx * to_nearest_y - gy * to_nearest_x
+    span = _norm2(to_nearest_x, to_nearest_y) * goal_distance
+    spanned = span > 0.0
+    ahead = np.where(
+        spanned, (gx * to_nearest_x + gy * to_nearest_y) / np.where(spanned, span, 1.0), 1.0
+    )
+    left_side = side >= 0.0
+    d_left = np.where(left_side, near, other)
+    d_right = np.where(left_side, other, near)
+    outside, left_x, left_y, right_x, right_y = obstacle.tangent_points(px, py, lx, ly)
+    goal_angle = np.arctan2(gy, gx)
+    left = _wrap(np.arctan2(left_y - py, left_x - px) - goal_angle)
+    right = _wrap(np.arctan2(right_y - py, right_x - px) - goal_angle)
+    beta = _min(np.abs(left), np.abs(right))
+    beta = np.where((left > 0.0) & (right < 0.0), -beta, beta)
+    beta = np.where(outside, beta, -math.pi / 2.0)
+    return present, clearance, d_left, d_right, beta, ahead
+
+
 def _ellipse_distance(a: Array, b: Array, u: Array, v: Array) -> tuple[Array, Array, Array]:
     """:func:`protocol.geometry._ellipse_distance` (``a >= b`` always: long >= short)."""
     su, sv = u / a, v / b
@@ -226,27 +268,31 @@ def _ellipse_distance(a: Array, b: Array, u: Array, v: Array) -> tuple[Array, Ar
 
 
 def _newton(a: Array, b: Array, u: Array, v: Array, gap: Array) -> Array:
-    """Eberly's Newton iteration on s, each element stopping where the scalar loop breaks."""
+    """Eberly's Newton iteration on s, each element stopping where the scalar loop breaks
+    (those still going are gathered into shorter arrays once they are few)."""
     s = _max(b * v, a * u - gap)
+    a_u, b_v = a * u, b * v
     result = s.copy()
     active = np.arange(len(s))
+    going = np.ones(len(s), dtype=bool)
     for _ in range(NEWTON_ITERATIONS):
-        ratio_u = a * u / (s + gap)
-        ratio_v = b * v / s
-        value = ratio_u * ratio_u + ratio_v * ratio_v - 1.0
-        moving = ~(value <= 0.0)
-        slope = -2.0 * (ratio_u * ratio_u / (s + gap) + ratio_v * ratio_v / s)
-        step = value / slope
+        shifted = s + gap
+        ratio_u = a_u / shifted
+        ratio_v = b_v / s
+        square_u, square_v = ratio_u * ratio_u, ratio_v * ratio_v
+        value = square_u + square_v - 1.0
+        moving = going & ~(value <= 0.0)
+        step = value / (-2.0 * (square_u / shifted + square_v / s))
         s = np.where(moving, s - step, s)
         going = moving & ~(np.abs(step) <= 1e-15 * s)
-        if going.all():
-            continue
-        stopped = ~going
-        result[active[stopped]] = s[stopped]
-        active = active[going]
-        a, b, u, v, gap, s = a[going], b[going], u[going], v[going], gap[going], s[going]
-        if not len(active):
-            return result
+        count = np.count_nonzero(going)
+        if count == 0:
+            break
+        if count <= len(going) // 2:
+            result[active] = s
+            active = active[going]
+            a_u, b_v, gap, s = a_u[going], b_v[going], gap[going], s[going]
+            going = np.ones(count, dtype=bool)
     result[active] = s
     return result
 
@@ -423,7 +469,7 @@ def _centroid(peaks: Sequence[float], fired: Sequence[Array]) -> Array:
     small, medium, big = peaks
     low_width = medium - small
     high_width = big - medium
-    whole = [_rising(w, 1.0) for w in fired]
+    whole = [_rising_whole(w) for w in fired]
     piece_area, piece_moment = whole[0]
     area = 0.0 + low_width * piece_area
     moment = 0.0 + low_width * ((small - low_width) * piece_area + low_width * piece_moment)
@@ -449,6 +495,15 @@ def _rising(level: Array, upto: Array | float) -> tuple[Array, Array]:
             upto * upto * upto / 3.0,
             level * level * level / 3.0 + level * (upto * upto - level * level) * 0.5,
         ),
+    )
+
+
+def _rising_whole(level: Array) -> tuple[Array, Array]:
+    """``_rising(level, 1.0)``: with ``level <= 1`` (a membership) both of its branches give
+    the same bits at ``level == 1``, so the general one serves throughout."""
+    return (
+        level * (1.0 - level * 0.5),
+        level * level * level / 3.0 + level * (1.0 * 1.0 - level * level) * 0.5,
     )
 
 
@@ -706,6 +761,7 @@ class _Batch:
         self.aim = _Sections(
             [o.grown(self.config.ao_pass_margin) if o is not None else None for o in obstacles]
         )
+        self.reach_squared = (self.obstacle.a + self.config.sensing_range + REACH_MARGIN) ** 2
         self.fuzzy = _Fuzzy(rule_base or RuleBase.load())
         nothing = absent(self.config.sensing_range)
         self.k_t_without_obstacle = self.fuzzy.scalar.weights(nothing.min_distance, nothing.beta)[0]
@@ -789,49 +845,32 @@ class _Batch:
     def _measure(
         self, px: Array, py: Array, pz: Array, goal_x: Array, goal_y: Array
     ) -> tuple[Mask, Array, Array, Array, Array, Array]:
-        """Module DM (controller.obstacle.measure): present, clearance, d_L, d_R, beta, ahead."""
+        """Module DM (controller.obstacle.measure): present, clearance, d_L, d_R, beta, ahead.
+
+        Measured only where the TCP is below the obstacle's top and within the sensing range
+        of a circle round its section: elsewhere the scalar code finds it absent too.
+        """
         obstacle = self.obstacle
         sensing_range = self.config.sensing_range
-        lx, ly = obstacle.to_local(px, py)
-        clearance, nearest_x, nearest_y = obstacle.nearest_point(lx, ly)
-        present = ~(pz >= obstacle.top) & ~(clearance >= sensing_range)
-        gx, gy = goal_x - px, goal_y - py
-        goal_distance = _norm2(gx, gy)
-        on_goal = goal_distance < 1e-9
-        if on_goal.any():
-            gx = np.where(on_goal, obstacle.x - px, gx)
-            gy = np.where(on_goal, obstacle.y - py, gy)
-            goal_distance = np.where(on_goal, _max(_norm2(gx, gy), 1e-9), goal_distance)
-        near = _min(_max(clearance, 0.0), sensing_range)
-        crosses, entry, exit_ = obstacle.line_crossings(lx, ly, px + gx, py + gy)
-        other = _max(_min(_min(np.abs(entry), np.abs(exit_)) * goal_distance, sensing_range), near)
-        other = np.where(crosses, other, sensing_range)
-        to_nearest_x, to_nearest_y = nearest_x - px, nearest_y - py
-        side = gx * to_nearest_y - gy * to_nearest_x
-        span = _norm2(to_nearest_x, to_nearest_y) * goal_distance
-        ahead = np.where(
-            span > 0.0,
-            (gx * to_nearest_x + gy * to_nearest_y) / np.where(span > 0.0, span, 1.0),
-            1.0,
-        )
-        left_side = side >= 0.0
-        d_left = np.where(left_side, near, other)
-        d_right = np.where(left_side, other, near)
-        outside, left_x, left_y, right_x, right_y = obstacle.tangent_points(px, py, lx, ly)
-        goal_angle = np.arctan2(gy, gx)
-        left = _wrap(np.arctan2(left_y - py, left_x - px) - goal_angle)
-        right = _wrap(np.arctan2(right_y - py, right_x - px) - goal_angle)
-        beta = _min(np.abs(left), np.abs(right))
-        beta = np.where((left > 0.0) & (right < 0.0), -beta, beta)
-        beta = np.where(outside, beta, -math.pi / 2.0)
-        return (
-            present,
-            np.where(present, clearance, math.inf),
-            np.where(present, d_left, sensing_range),
-            np.where(present, d_right, sensing_range),
-            np.where(present, beta, math.pi),
-            np.where(present, ahead, -1.0),
-        )
+        dx, dy = px - obstacle.x, py - obstacle.y
+        rows = np.flatnonzero(~(pz >= obstacle.top) & (dx * dx + dy * dy < self.reach_squared))
+        present = np.zeros(self.count, dtype=bool)
+        clearance = np.full(self.count, math.inf)
+        d_left, d_right = np.full(self.count, sensing_range), np.full(self.count, sensing_range)
+        beta, ahead = np.full(self.count, math.pi), np.full(self.count, -1.0)
+        if len(rows):
+            found = _measure(
+                obstacle.take(rows), sensing_range, px[rows], py[rows], goal_x[rows], goal_y[rows]
+            )
+            present[rows] = found[0]
+            for array, values, nothing in zip(
+                (clearance, d_left, d_right, beta, ahead),
+                found[1:],
+                (math.inf, sensing_range, sensing_range, math.pi, -1.0),
+                strict=True,
+            ):
+                array[rows] = np.where(found[0], values, nothing)
+        return present, clearance, d_left, d_right, beta, ahead
 
     def _plan_tracking(
         self,

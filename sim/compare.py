@@ -175,7 +175,7 @@ class Cluster:
     def __init__(self, address: str) -> None:
         from distributed import Client  # only with --scheduler
 
-        self._client = Client(address, set_as_default=False)
+        self._client = Client(address)
 
     def map(self, function: Callable[..., Any], items: Sequence[Any]) -> Iterator[Any]:
         from distributed import as_completed

@@ -9,6 +9,7 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
+from controller.fuzzy import FuzzyInference, RuleBase
 from controller.planner import check_plan
 from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder
@@ -20,8 +21,10 @@ from sim.batch import (
     WIRE_POSITION,
     WIRE_VELOCITY,
     MeasureStream,
+    _Fuzzy,
     _max,
     _min,
+    _Sections,
     simulate_batch,
 )
 from sim.measures import Measures, compute_measures
@@ -192,3 +195,26 @@ def test_a_batch_shares_its_configuration() -> None:
         simulate_batch([scenario, other], Mode.FUZZY)
     with pytest.raises(ValueError, match="mode"):
         simulate_batch([scenario, scenario.with_mode(Mode.CONVENTIONAL)])
+
+
+def test_fuzzy_inference_and_ellipse_distance_are_those_of_the_scalar_code() -> None:
+    rng = np.random.default_rng(5)
+    rule_base = RuleBase.load()
+    scalar, batch = FuzzyInference(rule_base), _Fuzzy(rule_base)
+    corners = [p for t in rule_base.inputs["min_distance"].terms.values() for p in (t.a, t.d)]
+    distance = np.concatenate([rng.uniform(-0.05, 0.25, 3000), corners, [0.0, 0.2]])
+    beta = np.concatenate([rng.uniform(-3.5, 3.5, 3000), np.zeros(len(corners) + 2)])
+    k_t, k_c = batch.weights(distance, beta)
+    expected = [scalar.weights(d, b) for d, b in zip(distance.tolist(), beta.tolist(), strict=True)]
+    assert list(zip(k_t.tolist(), k_c.tolist(), strict=True)) == expected
+
+    obstacle = EllipticCylinder(0.4, -0.1, 0.12, 0.05, 0.3, 0.7, 0.02)
+    points = np.concatenate(
+        [rng.uniform(-0.3, 0.3, (3000, 2)), [[0.0, 0.0], [0.05, 0.0], [0.0, 0.03], [0.2, 0.0]]]
+    )
+    px, py = points[:, 0] + obstacle.x, points[:, 1] + obstacle.y
+    sections = _Sections([obstacle] * len(px))
+    distances, nearest_x, nearest_y = sections.nearest_point(*sections.to_local(px, py))
+    for index, (x, y) in enumerate(zip(px.tolist(), py.tolist(), strict=True)):
+        distance_, (wx, wy) = obstacle.nearest_point(x, y)
+        assert (distances[index], nearest_x[index], nearest_y[index]) == (distance_, wx, wy)

@@ -1,0 +1,108 @@
+"""scara-compare: the command line, the sweeps, and the same results in-process and on Dask."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from controller.fuzzy import RuleBase
+from protocol.errors import ConfigError
+from protocol.scenario import Mode
+from sim.compare import main, parse_sweep
+
+COUNT = ["-n", "2", "--seed", "9", "-q"]  # two short scenarios (6 and 8 s)
+
+
+@pytest.fixture(scope="module")
+def in_process(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("in_process")
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main([*COUNT, "--workers", "2", "--out", str(out)]) == 0
+    return out, printed.getvalue()
+
+
+@pytest.fixture(scope="module")
+def dask_scheduler() -> Iterator[str]:
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        host="127.0.0.1",
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address="127.0.0.1:0",
+    ) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        yield cluster.scheduler_address
+
+
+def rows(path: Path) -> list[dict[str, str]]:
+    with path.open() as file:
+        return list(csv.DictReader(file))
+
+
+def test_writes_a_row_per_scenario_and_mode_the_table_and_the_figures(
+    in_process: tuple[Path, str],
+) -> None:
+    out, printed = in_process
+    table = rows(out / "compare.csv")
+    assert sorted((row["mode"], row["index"]) for row in table) == [
+        (mode, index) for mode in ("conventional", "fuzzy") for index in ("0", "1")
+    ]
+    assert all(float(row["peak_jerk"]) > 0.0 for row in table)
+    assert "| measure | fuzzy | conventional |" in printed
+    assert "scenarios where avoidance engaged" in printed
+    for name in ("compare.png", "worst-fuzzy.png", "worst-conventional.png"):
+        assert (out / name).stat().st_size > 10_000
+
+
+def test_dask_gives_the_in_process_results(
+    in_process: tuple[Path, str], dask_scheduler: str, tmp_path: Path
+) -> None:
+    assert main([*COUNT, "--scheduler", dask_scheduler, "--out", str(tmp_path), "--no-figure"]) == 0
+    assert rows(tmp_path / "compare.csv") == rows(in_process[0] / "compare.csv")
+
+
+def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["--help"])
+    assert done.value.code == 0
+    assert "--scheduler" in capsys.readouterr().out
+    for arguments, named in (
+        (["-n", "0"], "--count"),
+        (["--workers", "zero"], "--workers"),
+        (["--sweep", "bogus=1"], "bogus"),
+        (["--sweep", "switch_distance=-0.1"], "switch_distance"),
+        (["--sweep", "min_distance.near=0:0.01:0.04"], "a:b:c:d"),
+        (["--sweep", "k_C.peaks=0.9:0.5:0.1"], "small < medium < big"),
+        (["--sweep", "sensing_range"], "NAME=V1"),
+    ):
+        with pytest.raises(SystemExit) as done:
+            main(arguments)
+        assert done.value.code == 2
+        assert named in capsys.readouterr().err
+
+
+def test_sweeps_make_one_variant_per_value_in_the_modes_they_concern() -> None:
+    switch = parse_sweep("switch_distance=0.02,0.06")
+    assert [v.name for v in switch] == ["switch_distance=0.02", "switch_distance=0.06"]
+    assert all(v.modes == (Mode.CONVENTIONAL,) for v in switch)
+    assert switch[1].controller == {"switch_distance": 0.06}
+    (margin,) = parse_sweep("ao_pass_margin=0.02")
+    assert margin.modes == tuple(Mode)
+    near, peaks = (
+        parse_sweep("min_distance.near=0:0:0.02:0.05")[0],
+        parse_sweep("k_C.peaks=0.1:0.5:0.9")[0],
+    )
+    assert near.modes == peaks.modes == (Mode.FUZZY,)
+    assert isinstance(near.rule_base, RuleBase) and isinstance(peaks.rule_base, RuleBase)
+    assert near.rule_base.inputs["min_distance"].terms["near"].d == 0.05
+    assert peaks.rule_base.outputs["k_C"].peaks == (0.1, 0.5, 0.9)
+    assert peaks.rule_base.outputs["k_T"].peaks == RuleBase.load().outputs["k_T"].peaks
+    with pytest.raises(ConfigError, match="not a number"):
+        parse_sweep("switch_distance=far")
