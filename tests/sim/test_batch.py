@@ -218,3 +218,36 @@ def test_fuzzy_inference_and_ellipse_distance_are_those_of_the_scalar_code() -> 
     for index, (x, y) in enumerate(zip(px.tolist(), py.tolist(), strict=True)):
         distance_, (wx, wy) = obstacle.nearest_point(x, y)
         assert (distances[index], nearest_x[index], nearest_y[index]) == (distance_, wx, wy)
+
+
+def test_streamed_measures_agree_with_whole_log_formulas() -> None:
+    """An independent reading of the measures' definitions on a whole log."""
+    run = simulate(load_scenario("reference"), Mode.CONVENTIONAL)
+    log, measures = run.log, run.measures
+    positions = log.columns("x", "y", "z")
+    assert measures.min_clearance == log["clearance"].min()
+    assert measures.path_length == pytest.approx(
+        np.linalg.norm(np.diff(positions, axis=0), axis=1).sum(), rel=TOLERANCE
+    )
+    commands = log.columns("command_theta1", "command_theta2")
+    assert measures.max_command_jump == np.abs(np.diff(commands, axis=0)).max()
+    for waypoint, miss in zip(run.scenario.waypoints, measures.waypoint_miss, strict=True):
+        assert (
+            miss == np.linalg.norm(positions - (waypoint.x, waypoint.y, waypoint.z), axis=1).min()
+        )
+    a1, a2 = run.scenario.robot.a1, run.scenario.robot.a2
+    theta1, theta12 = log["theta1"], log["theta1"] + log["theta2"]
+    rate1, rate12 = log["theta1_rate"], log["theta1_rate"] + log["theta2_rate"]
+    velocity = np.column_stack(
+        [
+            -a1 * np.sin(theta1) * rate1 - a2 * np.sin(theta12) * rate12,
+            a1 * np.cos(theta1) * rate1 + a2 * np.cos(theta12) * rate12,
+            -log["d3_rate"],
+        ]
+    )
+    fit = np.polynomial.polynomial.polyvander(np.arange(-7.0, 8.0), 3)
+    weights = np.linalg.pinv(fit)[2] * 2.0 / run.scenario.controller.period**2
+    windows = np.lib.stride_tricks.sliding_window_view(velocity, 15, axis=0)
+    jerk = np.linalg.norm(windows @ weights, axis=1)
+    assert measures.peak_jerk == pytest.approx(jerk.max(), rel=TOLERANCE)
+    assert measures.rms_jerk == pytest.approx(np.sqrt(np.mean(jerk**2)), rel=TOLERANCE)
