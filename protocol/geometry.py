@@ -7,14 +7,16 @@ than the inflation to the true section along the axes and is what clearance is m
 The controller's module DM measures it (``controller/obstacle.py``); the plant simulator uses
 it as ground truth for collisions.
 
-Squares are ``x * x`` and lengths ``sqrt(x * x + y * y)``, not ``x ** 2`` and ``hypot``: numpy
-has bit-identical twins of these (and not of libm's ``pow`` or Python's ``hypot``), so the
-batch simulator (``sim/batch.py``) reproduces this geometry exactly.
+Squares are ``x * x`` and lengths :func:`length` (``sqrt(x * x + y * y)``), not ``x ** 2`` and
+``math.hypot``: numpy has bit-identical twins of these (and not of libm's ``pow`` or Python's
+``hypot``), so the batch simulator (``sim/batch.py``) reproduces this geometry, and the law
+that uses it, exactly.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from protocol.errors import ConfigError
@@ -26,6 +28,20 @@ AXIS_SNAP = 1e-12
 def wrap_angle(angle: float) -> float:
     """``angle`` in [-pi, pi)."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def length(x: float, y: float) -> float:
+    """``sqrt(x * x + y * y)``: ``math.hypot`` without the extra precision numpy cannot match."""
+    return math.sqrt(x * x + y * y)
+
+
+def distance(first: Sequence[float], second: Sequence[float]) -> float:
+    """Euclidean distance, as the square root of the squares summed in order (``math.dist``,
+    like ``math.hypot``, has no bit-identical numpy twin)."""
+    total = 0.0
+    for a, b in zip(first, second, strict=True):
+        total += (a - b) * (a - b)
+    return math.sqrt(total)
 
 
 def cross(first: Point, second: Point) -> float:
@@ -108,7 +124,7 @@ class EllipticCylinder:
         a, b = self.semi_axes
         lx, ly = self.to_local(px, py)
         sx, sy = lx / a, ly / b
-        norm = math.sqrt(sx * sx + sy * sy)
+        norm = length(sx, sy)
         if norm <= 1.0:
             return None
         centre_angle = math.atan2(sy, sx)
@@ -168,8 +184,7 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
             x0 = a * a * u / (a * a - b * b)
             sx = x0 / a
             y0 = b * math.sqrt(max(0.0, 1.0 - sx * sx))
-            dx = x0 - u
-            return -math.sqrt(dx * dx + y0 * y0), (x0, y0)
+            return -length(x0 - u, y0), (x0, y0)
         return u - a, (a, 0.0)
     if u == 0.0:
         return v - b, (0.0, b)
@@ -190,6 +205,5 @@ def _ellipse_distance(a: float, b: float, u: float, v: float) -> tuple[float, Po
         if abs(step) <= 1e-15 * s:
             break
     cx, cy = a * a * u / (s + gap), b * b * v / s
-    dx, dy = cx - u, cy - v
-    distance = math.sqrt(dx * dx + dy * dy)
-    return (-distance if inside else distance), (cx, cy)
+    found = length(cx - u, cy - v)
+    return (-found if inside else found), (cx, cy)
