@@ -5,6 +5,11 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import os
+import signal
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -106,3 +111,24 @@ def test_sweeps_make_one_variant_per_value_in_the_modes_they_concern() -> None:
     assert peaks.rule_base.outputs["k_T"].peaks == RuleBase.load().outputs["k_T"].peaks
     with pytest.raises(ConfigError, match="not a number"):
         parse_sweep("switch_distance=far")
+
+
+def test_ctrl_c_stops_workers_and_exits_130_without_a_traceback(tmp_path: Path) -> None:
+    command = [sys.executable, "-m", "sim.compare", "-n", "40", "--out", str(tmp_path)]
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,  # a group of its own, as a terminal's Ctrl-C reaches
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    time.sleep(4.0)
+    os.killpg(process.pid, signal.SIGINT)
+    _, error = process.communicate(timeout=30)
+    assert process.returncode == 130
+    assert "interrupted" in error.decode()
+    assert "Traceback" not in error.decode()
+    deadline = time.monotonic() + 10.0  # workers and the resource tracker leave soon after
+    while subprocess.run(["pgrep", "-g", str(process.pid)], capture_output=True).stdout:
+        assert time.monotonic() < deadline, "processes of scara-compare outlived it"
+        time.sleep(0.2)
