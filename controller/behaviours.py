@@ -18,6 +18,8 @@ TURN_LEFT = 1
 TURN_RIGHT = -1
 PLANNED_REST_SPEED = 0.005
 """m/s: below this the plan is taken to stand still and PT aims at the planned point."""
+AHEAD_SPEED_FRACTION = 0.25
+"""A TCP ahead of the moving plan slows down to this fraction of the planned speed."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,12 +43,13 @@ def plan_tracking(
 ) -> Command:
     """PT: follow the planned point; eq. 26's (v_T, omega_T).
 
-    The position error is split along and across the planned direction of travel. Along:
-    the speed is the planned speed plus ``position_gain`` times the lag, never negative, so
-    a TCP ahead of the plan waits rather than turning round. Across: the heading aims back
-    at the path, by ``atan(position_gain * offset / speed)`` (as Stanley's steering law),
-    with the plan's own turn rate fed forward. Where the plan is at rest the heading simply
-    aims at the planned point.
+    The wanted velocity is the plan's plus ``position_gain`` times the position error, split
+    along and across the planned direction of travel; the TCP steers to its direction and
+    moves at its size (so an arm beside a plan that slows down or waits still closes the
+    gap). Along, it is never below AHEAD_SPEED_FRACTION of the planned speed: a TCP ahead of
+    the plan (AO may drive it faster than planned) lets the plan catch up at a crawl rather
+    than turning round, or standing still while the plan moves. The plan's own turn rate is
+    fed forward. Where the plan is at rest the heading simply aims at the planned point.
     """
     error_x, error_y = reference[0] - position[0], reference[1] - position[1]
     vx, vy = reference_velocity
@@ -61,8 +64,10 @@ def plan_tracking(
     along_x, along_y = vx / planned_speed, vy / planned_speed
     lag = error_x * along_x + error_y * along_y
     offset = along_x * error_y - along_y * error_x
-    speed = min(max(planned_speed + config.position_gain * lag, 0.0), config.speed_max)
-    target = math.atan2(vy, vx) + math.atan2(config.position_gain * offset, planned_speed)
+    along = max(planned_speed + config.position_gain * lag, AHEAD_SPEED_FRACTION * planned_speed)
+    across = config.position_gain * offset
+    speed = min(math.hypot(along, across), config.speed_max)
+    target = math.atan2(vy, vx) + math.atan2(across, along)
     ax, ay = reference_acceleration
     feedforward = (vx * ay - vy * ax) / (planned_speed * planned_speed)
     error = wrap_angle(target - heading)

@@ -1,8 +1,13 @@
 """One control step: measure, behave, coordinate, map to joints, limit (Fig. 6 end to end).
 
 :class:`ControlLaw` is pure in the simple-pid sense: it owns the few values a controller
-must remember between ticks (the unicycle heading, the TL/TR choice, the last command) and
-is handed the time and the measured joints; it knows nothing of buses or clocks.
+must remember between ticks (the unicycle heading, the TL/TR choice, the last command, where
+on the plan the reference stands and how fast it moves on, the last waypoint passed) and is
+handed the time and the measured joints; it knows nothing of buses or clocks.
+
+Near an inner waypoint the plan waits for an arm that a detour has held off the way to it
+(time scaling, ``docs/study.md``): the reference moves on past the waypoint once the arm has
+come to it, instead of pulling the arm across the corner.
 """
 
 from __future__ import annotations
@@ -19,8 +24,30 @@ from protocol.geometry import EllipticCylinder, wrap_angle
 from protocol.kinematics import forward, joint_rates_for
 from protocol.scenario import Scenario
 
+Point3 = tuple[float, float, float]
+
 GOAL_HANDOVER = 0.5
-"""s: how long before a waypoint's time DM starts looking towards the one after it."""
+"""s of plan: how long before a waypoint's time DM starts looking towards the one after it."""
+BEHIND = (0.0005, 0.001)
+"""m: how far the arm may be off the way from the reference to the next waypoint (see
+:meth:`ControlLaw._behind`). Near the waypoint the plan slows as that grows across this span
+and waits beyond it."""
+PASSED = 0.0015
+"""m: a waypoint the TCP came this close to counts as passed (:attr:`ControlLaw.reached`)."""
+GATE_APPROACH = 0.4
+"""s of plan before a waypoint over which the gate closes (the reference may slow to wait)."""
+GATE_RELEASE = 0.2
+"""s of plan after a waypoint over which the gate opens again."""
+RATE_CHANGE = 0.1
+"""s: the plan's rate goes from 1 to 0 or back in no less than this, so the reference never
+brakes or starts harder than the arm can follow (an arm overshooting a waiting reference
+would have to turn back: a stop)."""
+ROOM_MAX = 0.05
+"""m: the free room around a waypoint (see :meth:`ControlLaw._at_waypoint`) is at most this."""
+GOAL_KEPT = (0.005, 0.03)
+"""m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
+following waypoint is undone: an arm still on its way round the obstacle keeps looking at
+p_j."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,6 +66,7 @@ class ControlOutput:
     blended: Command
     heading: float
     limited: bool
+    progress: float
 
 
 class ControlLaw:
@@ -58,9 +86,11 @@ class ControlLaw:
         self.obstacle = obstacle
         self._aim = obstacle.grown(config.ao_pass_margin) if obstacle is not None else None
         self.coordinator = coordinator
+        self._room = tuple(self._free_room(point) for point in trajectory.points)
         self.period = config.period
         self._speed_limits = robot.speed_limits
         self._step_limits = tuple(limit * self.period for limit in robot.accel_limits)
+        self._rate_step = self.period / RATE_CHANGE
         self.reset()
 
     @classmethod
@@ -81,6 +111,13 @@ class ControlLaw:
         self.heading = math.atan2(points[1][1] - points[0][1], points[1][0] - points[0][0])
         self.side = 0
         self.previous_command: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.progress = self.trajectory.times[0]
+        """The plan's time the reference stands at: advances by :attr:`rate` times t's."""
+        self.rate = 1.0
+        """How fast the plan's time runs against t, 0..1 (see :meth:`_wanted_rate`)."""
+        self._last_t = self.progress
+        self.reached = 0
+        """The last waypoint the TCP has come within PASSED of."""
 
     def resume_from_rest(self) -> None:
         """Take up control again after zero was commanded (a hold): the next command ramps up
@@ -88,11 +125,26 @@ class ControlLaw:
         self.previous_command = (0.0, 0.0, 0.0)
 
     def step(self, t: float, joint_position: tuple[float, float, float]) -> ControlOutput:
+        """One tick at the plan's clock ``t`` (it stops while the node holds)."""
         config = self.config
+        self.progress += self.rate * max(t - self._last_t, 0.0)
+        self._last_t = t
+        progress = self.progress
         theta1, theta2, d3 = joint_position
         tcp = forward(self.robot, theta1, theta2, d3)
-        reference, reference_velocity, reference_acceleration = self.trajectory.evaluate(t)
-        measurement = measure(self.obstacle, tcp, self._goal(t), config.sensing_range)
+        reference, velocity, acceleration = self.trajectory.evaluate(progress)
+        index = self.trajectory.segment_index(progress)
+        self._mark_reached(index, tcp)
+        behind = self._behind(index, tcp, reference)
+        wanted = self._wanted_rate(progress, index, behind, self._behind(index - 1, tcp, reference))
+        step = self._rate_step
+        rate = self.rate = min(max(wanted, self.rate - step), self.rate + step)
+        # The reference moves at rate times the plan's velocity: the path's curvature, and
+        # with it the turn rate PT feeds forward, stay those of the plan.
+        reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
+        squared = rate * rate
+        goal = self._goal(progress, index, behind)
+        measurement = measure(self.obstacle, tcp, goal, config.sensing_range, self.heading)
 
         tracking = plan_tracking(
             config,
@@ -100,10 +152,10 @@ class ControlLaw:
             (tcp[0], tcp[1]),
             (reference[0], reference[1]),
             (reference_velocity[0], reference_velocity[1]),
-            (reference_acceleration[0], reference_acceleration[1]),
+            (squared * acceleration[0], squared * acceleration[1]),
         )
         avoiding = self._avoid(measurement, (tcp[0], tcp[1]))
-        k_t, k_c = self.coordinator.weights(measurement)
+        k_t, k_c = self.coordinator.weights(measurement, self._at_waypoint(progress, index, tcp))
         total = k_t + k_c
         blended = Command(
             (k_t * tracking.v + k_c * avoiding.v) / total,
@@ -122,7 +174,7 @@ class ControlLaw:
             command=command,
             tcp=tcp,
             reference=(reference[0], reference[1], reference[2]),
-            reference_speed=math.hypot(reference_velocity[0], reference_velocity[1]),
+            reference_speed=math.hypot(velocity[0], velocity[1]),
             measurement=measurement,
             tracking=tracking,
             avoiding=avoiding,
@@ -131,23 +183,103 @@ class ControlLaw:
             blended=blended,
             heading=self.heading,
             limited=limited,
+            progress=progress,
         )
 
-    def _goal(self, t: float) -> tuple[float, float]:
+    def _free_room(self, point: tuple[float, ...]) -> float:
+        """The radius around a waypoint that the obstacle leaves free (at most ROOM_MAX)."""
+        obstacle = self.obstacle
+        if obstacle is None or point[2] >= obstacle.height + obstacle.inflation:
+            return ROOM_MAX
+        return min(max(obstacle.clearance(point[0], point[1]), 0.0), ROOM_MAX)
+
+    def _at_waypoint(self, progress: float, index: int, tcp: Point3) -> float:
+        """How deep the TCP is in the free room of the waypoint it heads for, 0..1.
+
+        Inside the circle the obstacle leaves free around p_j the straight way to p_j cannot
+        touch it, so AO is not needed there: 1 within half its radius, fading to 0 at its
+        edge. Over the GATE_RELEASE after p_j-1's time the room of p_j-1 hands over to that
+        of p_j, so that k_C never jumps when the plan moves on.
+        """
+        times = self.trajectory.times
+        release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
+        share = smoothstep((progress - times[index - 1]) / release)
+        return max(share * self._depth(index, tcp), (1.0 - share) * self._depth(index - 1, tcp))
+
+    def _depth(self, index: int, tcp: Point3) -> float:
+        """How deep the TCP is in the free room of waypoint ``index``, 0..1."""
+        room = self._room[index]
+        if room <= 0.0:
+            return 0.0
+        point = self.trajectory.points[index]
+        distance = math.hypot(tcp[0] - point[0], tcp[1] - point[1])
+        return 1.0 - smoothstep((distance - room / 2.0) / (room / 2.0))
+
+    def _mark_reached(self, index: int, tcp: Point3) -> None:
+        """Note when the TCP passes waypoint ``index - 1`` or ``index`` (within PASSED)."""
+        points = self.trajectory.points
+        for candidate in (index - 1, index):
+            if candidate > self.reached and math.dist(tcp, points[candidate]) <= PASSED:
+                self.reached = candidate
+
+    def _behind(self, index: int, tcp: Point3, reference: tuple[float, ...]) -> float:
+        """How far the TCP is off the way from the reference to waypoint ``index``: half of
+        what going by the TCP adds to the distance, (|TCP p_j| + |TCP ref| - |ref p_j|) / 2.
+
+        It is the lag for an arm right behind the reference, zero for one on the way between
+        them (ahead of the plan), and counts an arm beside the path (coming round an
+        obstacle) long before the reference reaches p_j. -inf once the TCP has passed p_j
+        (:attr:`reached`): nothing holds the plan back there any more.
+        """
+        if index <= self.reached:
+            return -math.inf
+        waypoint = self.trajectory.points[index]
+        return 0.5 * (
+            math.dist(tcp, waypoint) + math.dist(tcp, reference) - math.dist(reference, waypoint)
+        )
+
+    def _wanted_rate(
+        self, progress: float, index: int, behind: float, behind_passed: float
+    ) -> float:
+        """How fast the plan's time should run: 1, except near an inner waypoint while the arm
+        is off the way to it (:meth:`_behind`), where the plan slows down to wait for it.
+
+        The gate of waypoint p_j closes over the GATE_APPROACH before its time and opens over
+        the GATE_RELEASE after it; how much it holds the plan back grows across BEHIND with
+        how far off the arm is. Both are smoothsteps, and :meth:`step` limits how fast the
+        rate changes (RATE_CHANGE).
+        """
+        times = self.trajectory.times
+        low, high = BEHIND
+        hold = 0.0
+        if index < len(times) - 1:  # approaching inner waypoint p_j
+            approach = min(GATE_APPROACH, (times[index] - times[index - 1]) / 2.0)
+            gate = smoothstep((progress - times[index] + approach) / approach)
+            hold = gate * smoothstep((behind - low) / (high - low))
+        if index >= 2:  # just past inner waypoint p_j-1
+            release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
+            gate = 1.0 - smoothstep((progress - times[index - 1]) / release)
+            hold = max(hold, gate * smoothstep((behind_passed - low) / (high - low)))
+        return 1.0 - hold
+
+    def _goal(self, progress: float, index: int, behind: float) -> tuple[float, float]:
         """The next waypoint p_j that DM looks towards.
 
         Over the last GOAL_HANDOVER of a segment (at most half of it) the point slides from
         p_j to p_j+1, so that the direction DM measures from does not jump when the plan
-        moves on to the next segment.
+        moves on to the next segment; but only as far as the arm keeps to the way to p_j
+        (GOAL_KEPT): an arm still on its way round the obstacle keeps looking at p_j.
         """
         trajectory = self.trajectory
-        index = trajectory.segment_index(t)
         goal = trajectory.points[index]
         if index + 1 >= len(trajectory.points):
             return (goal[0], goal[1])
         end = trajectory.times[index]
         handover = min(GOAL_HANDOVER, (end - trajectory.times[index - 1]) / 2.0)
-        share = smoothstep((t - end + handover) / handover)
+        low, high = GOAL_KEPT
+        share = smoothstep((progress - end + handover) / handover) * (
+            1.0 - smoothstep((behind - low) / (high - low))
+        )
         following = trajectory.points[index + 1]
         return (
             goal[0] + share * (following[0] - goal[0]),
@@ -155,11 +287,15 @@ class ControlLaw:
         )
 
     def _avoid(self, measurement: ObstacleMeasurement, position: tuple[float, float]) -> Command:
-        """AO with its TL/TR choice, held while the obstacle is ahead (or the TCP inside)."""
+        """AO with its TL/TR choice, held while the obstacle is ahead, or the TCP moves towards
+        it (or is inside it)."""
         if (
             self._aim is None
             or not measurement.present
-            or (measurement.ahead <= AHEAD_NONE and measurement.clearance > 0.0)
+            or (
+                max(measurement.ahead, measurement.toward) <= AHEAD_NONE
+                and measurement.clearance > 0.0
+            )
         ):
             self.side = 0
             return STOP

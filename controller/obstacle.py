@@ -19,7 +19,11 @@ What DM reports, seen from the tool centre point (TCP) looking towards the next 
   reads: the closer the obstacle is to (or the deeper it is in) the way, the more AO counts;
 - ``blocked``: the straight segment from the TCP to p_j crosses the inflated section;
 - ``ahead``: cosine of the angle between the direction to p_j and the direction to the
-  nearest point (1: straight ahead, -1: behind, so already passed).
+  nearest point (1: straight ahead, -1: behind, so already passed);
+- ``toward``: the same cosine for the direction the TCP moves in (its ``heading``; -1 when
+  none is given). An obstacle the TCP moves towards matters even when p_j lies elsewhere:
+  PT follows a plan that may pass through the obstacle, and an arm that went round it on
+  the far side of the plan is steered back through it.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ class ObstacleMeasurement:
     beta: float
     blocked: bool
     ahead: float
+    toward: float = -1.0
 
     @property
     def min_distance(self) -> float:
@@ -57,6 +62,7 @@ def absent(sensing_range: float) -> ObstacleMeasurement:
         beta=math.pi,
         blocked=False,
         ahead=-1.0,
+        toward=-1.0,
     )
 
 
@@ -65,8 +71,10 @@ def measure(
     tcp: tuple[float, float, float],
     goal: Point,
     sensing_range: float,
+    heading: float | None = None,
 ) -> ObstacleMeasurement:
-    """Module DM: measure ``obstacle`` from the TCP towards the next waypoint ``goal``."""
+    """Module DM: measure ``obstacle`` from the TCP towards the next waypoint ``goal``
+    (and along ``heading`` for ``toward``, if given)."""
     px, py, pz = tcp
     if obstacle is None or pz >= obstacle.height + obstacle.inflation:
         return absent(sensing_range)
@@ -92,6 +100,12 @@ def measure(
     side = cross((gx, gy), to_nearest)
     span = math.hypot(*to_nearest) * goal_distance
     ahead = (gx * to_nearest[0] + gy * to_nearest[1]) / span if span > 0.0 else 1.0
+    toward = -1.0
+    nearest_distance = math.hypot(*to_nearest)
+    if heading is not None and nearest_distance > 0.0:
+        toward = (
+            math.cos(heading) * to_nearest[0] + math.sin(heading) * to_nearest[1]
+        ) / nearest_distance
     d_left, d_right = (near, other) if side >= 0.0 else (other, near)
     edges = obstacle.tangent_points(px, py)
     if edges is None:
@@ -102,4 +116,4 @@ def measure(
         beta = min(abs(left), abs(right))
         if left > 0.0 > right:
             beta = -beta
-    return ObstacleMeasurement(True, clearance, d_left, d_right, beta, blocked, ahead)
+    return ObstacleMeasurement(True, clearance, d_left, d_right, beta, blocked, ahead, toward)

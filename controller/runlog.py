@@ -5,7 +5,10 @@ The in-process simulation, the controller node and a replayed log all fill the s
 
 ``t`` is the plan's time of the step and ``clock`` the run's time on the tick grid. They are
 equal unless the controller held (no fresh joint state: the plan's clock stops while the
-run's goes on), so a held run shows as slower, never hidden.
+run's goes on), so a held run shows as slower, never hidden. ``progress`` is where on the
+plan the reference stood: ``t`` itself, except where the law let the plan wait for an arm
+held off it by a detour (``ControlLaw.rate``). ``reference_speed`` is the plan's planar speed
+there (the reference moves slower while the plan waits).
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ COLUMNS = (
     "heading",
     "limited",
     "clock",
+    "progress",
 )
 COLUMN = {name: index for index, name in enumerate(COLUMNS)}
 
@@ -86,6 +90,7 @@ def row_of(
         output.heading,
         float(output.limited),
         clock,
+        output.progress,
     )
 
 

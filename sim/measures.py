@@ -12,16 +12,20 @@ import numpy as np
 from controller.planner import plan_of
 from controller.runlog import RunLog
 from protocol.kinematics import tcp_velocity
+from protocol.scenario import WAYPOINT_TOLERANCE as WAYPOINT_TOLERANCE  # the one definition
 from protocol.scenario import Scenario
 
-WAYPOINT_TOLERANCE = 0.002
-"""m: a waypoint counts as passed when the TCP comes this close."""
 STOP_SPEED_FRACTION = 0.02
 """A stop is planar TCP speed below this fraction of the planned mean speed ..."""
 STOP_MIN_TICKS = 3
 """... for at least this many ticks in a row ..."""
 STOP_EDGE_MARGIN = 0.2
-"""... while the plan itself is moving, and not within this many seconds of start or end."""
+"""... while the plan itself is moving, not within this many seconds of start or end ..."""
+STOP_REST_MARGIN = 0.1
+"""... nor within this many seconds of plan of a planned rest (a waypoint the plan stops at:
+the arm lags the plan, and slowing down to a planned stop is not a stop)."""
+PLAN_SAMPLES = 2001
+"""Points of the plan sampled for its length."""
 JERK_WINDOW = 15
 """Ticks in the local cubic fit that jerk is taken from (30 ms at 500 Hz)."""
 
@@ -64,7 +68,6 @@ TABLE_ROWS = (
 
 
 def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
-    times = log["t"]
     period = scenario.controller.period
     positions = log.columns("x", "y", "z")
     vx, vy = tcp_velocity(
@@ -77,17 +80,14 @@ def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
     min_clearance = float(np.min(clearance)) if len(clearance) else math.inf
 
     waypoints = scenario.waypoints
-    planned = plan_of(scenario)
-    samples = np.linspace(waypoints[0].t, waypoints[-1].t, 2001)
-    planned_points = np.array([planned.evaluate(float(t))[0] for t in samples])
-    planned_length = float(np.sum(np.linalg.norm(np.diff(planned_points[:, :2], axis=0), axis=1)))
-    nominal_speed = planned_length / (waypoints[-1].t - waypoints[0].t)
-    threshold = STOP_SPEED_FRACTION * nominal_speed
+    progress = log["progress"]
+    threshold, rests = stop_threshold_and_rests(scenario)
     planar_speed = np.hypot(velocity[:, 0], velocity[:, 1])
     watched = (
         (log["reference_speed"] >= threshold)
-        & (times >= waypoints[0].t + STOP_EDGE_MARGIN)
-        & (times <= waypoints[-1].t - STOP_EDGE_MARGIN)
+        & (progress >= waypoints[0].t + STOP_EDGE_MARGIN)
+        & (progress <= waypoints[-1].t - STOP_EDGE_MARGIN)
+        & ~near_any(progress, rests, STOP_REST_MARGIN)
     )
     stops = _count_runs(watched & (planar_speed < threshold), STOP_MIN_TICKS)
 
@@ -96,7 +96,7 @@ def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
     )
     last = waypoints[-1]
     done = (np.linalg.norm(positions - (last.x, last.y, last.z), axis=1) <= WAYPOINT_TOLERANCE) & (
-        times >= waypoints[-2].t
+        progress >= waypoints[-2].t
     )
     clock = log["clock"]
     completion = float(clock[np.argmax(done)] - waypoints[0].t) if done.any() else math.nan
@@ -115,6 +115,29 @@ def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
         path_length=float(np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=1))),
         waypoint_miss=misses,
     )
+
+
+def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
+    """The speed below which the arm counts as stopped (STOP_SPEED_FRACTION of the plan's mean
+    planar speed), and the plan's rests: the times of the waypoints it passes slower than
+    that (it stops where a coordinate turns back)."""
+    waypoints = scenario.waypoints
+    planned = plan_of(scenario)
+    samples = np.linspace(waypoints[0].t, waypoints[-1].t, PLAN_SAMPLES)
+    planned_points = np.array([planned.evaluate(float(t))[0] for t in samples])
+    planned_length = float(np.sum(np.linalg.norm(np.diff(planned_points[:, :2], axis=0), axis=1)))
+    threshold = STOP_SPEED_FRACTION * planned_length / (waypoints[-1].t - waypoints[0].t)
+    rests = [
+        time
+        for time, velocity in zip(planned.times, planned.velocities, strict=True)
+        if math.hypot(velocity[0], velocity[1]) < threshold
+    ]
+    return threshold, np.array(rests)
+
+
+def near_any(values: np.ndarray, marks: np.ndarray, margin: float) -> np.ndarray:
+    """Which ``values`` lie within ``margin`` of one of ``marks``."""
+    return np.asarray(np.any(np.abs(values[:, None] - marks[None, :]) <= margin, axis=1))
 
 
 def second_derivative(series: np.ndarray, period: float, clock: np.ndarray) -> np.ndarray:

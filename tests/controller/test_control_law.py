@@ -7,13 +7,21 @@ import math
 import numpy as np
 import pytest
 
-from controller.behaviours import TURN_LEFT, TURN_RIGHT, avoid_obstacle, plan_tracking
+from controller.behaviours import (
+    AHEAD_SPEED_FRACTION,
+    TURN_LEFT,
+    TURN_RIGHT,
+    avoid_obstacle,
+    plan_tracking,
+)
+from controller.control_law import RATE_CHANGE, ControlLaw
 from controller.coordination import ConventionalCoordinator
 from controller.obstacle import measure
 from protocol.config import ControllerConfig
 from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder
 from protocol.scenario import Mode, load_scenario
+from sim.measures import WAYPOINT_TOLERANCE
 from sim.simulation import simulate
 
 CONFIG = ControllerConfig()
@@ -25,9 +33,9 @@ def test_tracking_on_the_plan_follows_it() -> None:
     assert command.omega == pytest.approx(0.0)
 
 
-def test_tracking_ahead_of_the_plan_waits_instead_of_turning_round() -> None:
+def test_tracking_ahead_of_the_plan_slows_down_instead_of_turning_round() -> None:
     command = plan_tracking(CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
-    assert command.v == 0.0
+    assert command.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)  # crawls on, never stops
     assert command.omega == pytest.approx(0.0)
 
 
@@ -84,3 +92,39 @@ def test_controller_config_names_bad_values() -> None:
     with pytest.raises(ConfigError) as error:
         ControllerConfig(heading_gain=math.nan)
     assert error.value.field == "controller.heading_gain"
+
+
+def test_the_plan_runs_on_time_while_the_arm_keeps_up() -> None:
+    log = simulate(load_scenario("no_obstacle")).log
+    assert np.array_equal(log["progress"], log["t"])
+
+
+def test_the_plan_waits_at_a_waypoint_for_an_arm_held_off_by_a_detour() -> None:
+    # long_wall: rounding the wall, the arm is still far from the waypoint after it when the
+    # plan reaches that waypoint's time (without waiting it passed 13.3 mm away).
+    run = simulate(load_scenario("long_wall"))
+    lost = run.log["t"][-1] - run.log["progress"][-1]
+    assert lost > 0.1
+    assert run.measures.max_waypoint_miss <= WAYPOINT_TOLERANCE
+    assert run.measures.stops == 0
+    assert run.measures.collision_free
+
+
+def test_the_plans_rate_changes_gradually() -> None:
+    run = simulate(load_scenario("long_wall"))
+    period = run.scenario.controller.period
+    rate = np.diff(run.log["progress"]) / period
+    assert rate.min() < 0.5
+    assert np.all((rate >= 0.0) & (rate <= 1.0 + 1e-12))
+    assert np.abs(np.diff(rate)).max() <= period / RATE_CHANGE + 1e-9
+
+
+def test_the_plan_stands_still_while_the_node_holds() -> None:
+    scenario = load_scenario("long_wall")
+    law = ControlLaw.for_scenario(scenario)
+    joints = scenario.initial_joints()
+    for tick in range(200):
+        law.step(tick * scenario.controller.period, joints)
+    held = law.progress
+    law.step(199 * scenario.controller.period, joints)  # a hold: the plan's clock stopped
+    assert law.progress == held
