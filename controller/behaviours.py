@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from controller.obstacle import ObstacleMeasurement
 from protocol.config import ControllerConfig
-from protocol.geometry import EllipticCylinder, wrap_angle
+from protocol.geometry import EllipticCylinder, length, wrap_angle
 
 TURN_LEFT = 1
 TURN_RIGHT = -1
@@ -53,9 +53,9 @@ def plan_tracking(
     """
     error_x, error_y = reference[0] - position[0], reference[1] - position[1]
     vx, vy = reference_velocity
-    planned_speed = math.hypot(vx, vy)
+    planned_speed = length(vx, vy)
     if planned_speed < PLANNED_REST_SPEED:
-        distance = math.hypot(error_x, error_y)
+        distance = length(error_x, error_y)
         if distance < 1e-9:
             return STOP
         error = wrap_angle(math.atan2(error_y, error_x) - heading)
@@ -66,7 +66,7 @@ def plan_tracking(
     offset = along_x * error_y - along_y * error_x
     along = max(planned_speed + config.position_gain * lag, AHEAD_SPEED_FRACTION * planned_speed)
     across = config.position_gain * offset
-    speed = min(math.hypot(along, across), config.speed_max)
+    speed = min(length(along, across), config.speed_max)
     target = math.atan2(vy, vx) + math.atan2(across, along)
     ax, ay = reference_acceleration
     feedforward = (vx * ay - vy * ax) / (planned_speed * planned_speed)

@@ -20,7 +20,7 @@ from controller.coordination import AHEAD_NONE, Coordinator, make_coordinator, s
 from controller.obstacle import ObstacleMeasurement, measure
 from controller.planner import Trajectory, plan_of
 from protocol.config import ControllerConfig, RobotConfig
-from protocol.geometry import EllipticCylinder, wrap_angle
+from protocol.geometry import EllipticCylinder, distance, length, wrap_angle
 from protocol.kinematics import forward, joint_rates_for
 from protocol.scenario import Scenario
 
@@ -174,7 +174,7 @@ class ControlLaw:
             command=command,
             tcp=tcp,
             reference=(reference[0], reference[1], reference[2]),
-            reference_speed=math.hypot(velocity[0], velocity[1]),
+            reference_speed=length(velocity[0], velocity[1]),
             measurement=measurement,
             tracking=tracking,
             avoiding=avoiding,
@@ -212,14 +212,14 @@ class ControlLaw:
         if room <= 0.0:
             return 0.0
         point = self.trajectory.points[index]
-        distance = math.hypot(tcp[0] - point[0], tcp[1] - point[1])
+        distance = length(tcp[0] - point[0], tcp[1] - point[1])
         return 1.0 - smoothstep((distance - room / 2.0) / (room / 2.0))
 
     def _mark_reached(self, index: int, tcp: Point3) -> None:
         """Note when the TCP passes waypoint ``index - 1`` or ``index`` (within PASSED)."""
         points = self.trajectory.points
         for candidate in (index - 1, index):
-            if candidate > self.reached and math.dist(tcp, points[candidate]) <= PASSED:
+            if candidate > self.reached and distance(tcp, points[candidate]) <= PASSED:
                 self.reached = candidate
 
     def _behind(self, index: int, tcp: Point3, reference: tuple[float, ...]) -> float:
@@ -235,7 +235,7 @@ class ControlLaw:
             return -math.inf
         waypoint = self.trajectory.points[index]
         return 0.5 * (
-            math.dist(tcp, waypoint) + math.dist(tcp, reference) - math.dist(reference, waypoint)
+            distance(tcp, waypoint) + distance(tcp, reference) - distance(reference, waypoint)
         )
 
     def _wanted_rate(

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from protocol.geometry import EllipticCylinder, Point, cross, wrap_angle
+from protocol.geometry import EllipticCylinder, Point, cross, length, wrap_angle
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,10 +82,10 @@ def measure(
     if clearance >= sensing_range:
         return absent(sensing_range)
     gx, gy = goal[0] - px, goal[1] - py
-    goal_distance = math.hypot(gx, gy)
+    goal_distance = length(gx, gy)
     if goal_distance < 1e-9:  # on the goal: look at the obstacle instead
         gx, gy = obstacle.x - px, obstacle.y - py
-        goal_distance = max(math.hypot(gx, gy), 1e-9)
+        goal_distance = max(length(gx, gy), 1e-9)
     near = min(max(clearance, 0.0), sensing_range)
     crossings = obstacle.line_crossings(px, py, px + gx, py + gy)
     if crossings is None:
@@ -98,10 +98,10 @@ def measure(
         blocked = entry <= 1.0 and exit_ >= 0.0
     to_nearest = (nearest[0] - px, nearest[1] - py)
     side = cross((gx, gy), to_nearest)
-    span = math.hypot(*to_nearest) * goal_distance
+    span = length(*to_nearest) * goal_distance
     ahead = (gx * to_nearest[0] + gy * to_nearest[1]) / span if span > 0.0 else 1.0
     toward = -1.0
-    nearest_distance = math.hypot(*to_nearest)
+    nearest_distance = length(*to_nearest)
     if heading is not None and nearest_distance > 0.0:
         toward = (
             math.cos(heading) * to_nearest[0] + math.sin(heading) * to_nearest[1]
