@@ -43,7 +43,7 @@ from protocol.scenario import (
     Waypoint,
     check_scenario,
 )
-from sim.measures import STOP_REST_MARGIN, STOP_SPEED_FRACTION, near_any, stop_threshold_and_rests
+from sim.measures import STOP_REST_MARGIN, STOP_SPEED_FRACTION, stop_threshold_and_rests
 
 
 class Case(Enum):
@@ -422,5 +422,6 @@ def _moves_sensibly(scenario: Scenario) -> bool:
     plan = plan_of(scenario)
     times = np.linspace(scenario.waypoints[0].t, scenario.waypoints[-1].t, PATH_SAMPLES)
     speeds = np.array([math.hypot(*plan.evaluate(float(t))[1][:2]) for t in times])
-    crawling = (speeds < crawl) & ~near_any(times, rests, STOP_REST_MARGIN)
+    near_rest = np.any(np.abs(times[:, None] - rests[None, :]) <= STOP_REST_MARGIN, axis=1)
+    crawling = (speeds < crawl) & ~near_rest
     return not crawling.any()
