@@ -19,30 +19,32 @@ and duration (a finished scenario is still stepped, but no longer counted in its
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from controller.behaviours import PLANNED_REST_SPEED, TURN_LEFT, TURN_RIGHT
-from controller.control_law import GOAL_HANDOVER
+from controller.behaviours import AHEAD_SPEED_FRACTION, PLANNED_REST_SPEED, TURN_LEFT, TURN_RIGHT
+from controller.control_law import (
+    BEHIND,
+    GATE_APPROACH,
+    GATE_RELEASE,
+    GOAL_HANDOVER,
+    GOAL_KEPT,
+    PASSED,
+    RATE_CHANGE,
+    ControlLaw,
+)
 from controller.coordination import AHEAD_FULL, AHEAD_NONE
 from controller.fuzzy import OUTPUT_NAMES, OUTPUT_TERMS, FuzzyInference, RuleBase
 from controller.obstacle import absent
-from controller.planner import Trajectory, plan_of
+from controller.planner import Trajectory
 from protocol.geometry import AXIS_SNAP, EllipticCylinder
-from protocol.kinematics import DAMPING_S2_REF, tcp_velocity
+from protocol.kinematics import DAMPING_S2_REF
 from protocol.messages import COMMAND, STATE
 from protocol.scenario import Mode, Scenario
-from sim.measures import (
-    JERK_WINDOW,
-    STOP_EDGE_MARGIN,
-    STOP_MIN_TICKS,
-    STOP_SPEED_FRACTION,
-    WAYPOINT_TOLERANCE,
-    Measures,
-)
+from sim.measures import Measures, MeasureStream
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -84,6 +86,23 @@ def _wrap(angle: Array) -> Array:
 def _tanh(x: Array) -> Array:
     """``math.tanh`` of each element (numpy's tanh differs from libm's in the last bit)."""
     return np.fromiter(map(math.tanh, x.tolist()), np.float64, len(x))
+
+
+_Measurement = tuple[Mask, Array, Array, Array, Array, Array, Array]
+"""DM's present, clearance, d_L, d_R, beta, ahead, toward."""
+
+
+def _norm3(difference: Array) -> Array:
+    """The length of (3, n) differences as the scalar code takes it (not ``math.dist``)."""
+    x, y, z = difference
+    return np.asarray(np.sqrt(x * x + y * y + z * z))
+
+
+def _depth(room: Array, point: Array, px: Array, py: Array) -> Array:
+    """ControlLaw._depth: how deep (px, py) is in the free room round ``point``, 0..1."""
+    half = room / 2.0
+    inside = 1.0 - _smoothstep((_norm2(px - point[0], py - point[1]) - half) / half)
+    return np.asarray(np.where(room <= 0.0, 0.0, inside))
 
 
 def _norm2(x: Array, y: Array) -> Array:
@@ -193,10 +212,17 @@ class _Sections:
 
 
 def _measure(
-    obstacle: _Sections, sensing_range: float, px: Array, py: Array, goal_x: Array, goal_y: Array
-) -> tuple[Mask, Array, Array, Array, Array, Array]:
+    obstacle: _Sections,
+    sensing_range: float,
+    px: Array,
+    py: Array,
+    goal_x: Array,
+    goal_y: Array,
+    heading_cos: Array,
+    heading_sin: Array,
+) -> tuple[Mask, Array, Array, Array, Array, Array, Array]:
     """controller.obstacle.measure below the obstacle's top: present (within the sensing
-    range), clearance, d_L, d_R, beta, ahead (meaningful where present)."""
+    range), clearance, d_L, d_R, beta, ahead, toward (meaningful where present)."""
     lx, ly = obstacle.to_local(px, py)
     clearance, nearest_x, nearest_y = obstacle.nearest_point(lx, ly)
     present = ~(clearance >= sensing_range)
@@ -213,10 +239,18 @@ def _measure(
     other = np.where(crosses, other, sensing_range)
     to_nearest_x, to_nearest_y = nearest_x - px, nearest_y - py
     side = gx * to_nearest_y - gy * to_nearest_x
-    span = _norm2(to_nearest_x, to_nearest_y) * goal_distance
+    nearest_distance = _norm2(to_nearest_x, to_nearest_y)
+    span = nearest_distance * goal_distance
     spanned = span > 0.0
     ahead = np.where(
         spanned, (gx * to_nearest_x + gy * to_nearest_y) / np.where(spanned, span, 1.0), 1.0
+    )
+    apart = nearest_distance > 0.0
+    toward = np.where(
+        apart,
+        (heading_cos * to_nearest_x + heading_sin * to_nearest_y)
+        / np.where(apart, nearest_distance, 1.0),
+        -1.0,
     )
     left_side = side >= 0.0
     d_left = np.where(left_side, near, other)
@@ -228,7 +262,7 @@ def _measure(
     beta = _min(np.abs(left), np.abs(right))
     beta = np.where((left > 0.0) & (right < 0.0), -beta, beta)
     beta = np.where(outside, beta, -math.pi / 2.0)
-    return present, clearance, d_left, d_right, beta, ahead
+    return present, clearance, d_left, d_right, beta, ahead, toward
 
 
 def _ellipse_distance(a: Array, b: Array, u: Array, v: Array) -> tuple[Array, Array, Array]:
@@ -308,7 +342,9 @@ class _Plans:
     move forward, so the segment changes when the time reaches the next boundary.
     """
 
-    def __init__(self, trajectories: Sequence[Trajectory]) -> None:
+    def __init__(
+        self, trajectories: Sequence[Trajectory], rooms: Sequence[Sequence[float]]
+    ) -> None:
         count = len(trajectories)
         self.size = np.array([len(tr.times) for tr in trajectories])
         width = int(self.size.max())
@@ -323,6 +359,14 @@ class _Plans:
         self.goal_slide = np.zeros((count, width, 2))
         self.goal_end = np.zeros((count, width))
         self.goal_handover = np.ones((count, width))
+        # Per stage: the waypoint p_j it heads for and p_j-1 (index, point, time, free room),
+        # whether p_j and p_j-1 are inner waypoints, and the gate's approach and release.
+        self.stage_index = np.zeros((count, width), dtype=np.intp)
+        self.stage_point = np.zeros((count, width, 2, 3))
+        self.stage_time = np.zeros((count, width, 2))
+        self.stage_room = np.zeros((count, width, 2))
+        self.stage_inner = np.zeros((count, width, 2), dtype=bool)
+        self.stage_gate = np.ones((count, width, 2))
         for row, trajectory in enumerate(trajectories):
             times, points = trajectory.times, trajectory.points
             n = len(times)
@@ -344,6 +388,13 @@ class _Plans:
                     self.stage_k[row, stage, 0] = points[-1]
                     self.stage_start[row, stage] = times[-1]
                 index = min(stage + 1, n - 1)
+                self.stage_index[row, stage] = index
+                self.stage_point[row, stage] = (points[index], points[index - 1])
+                self.stage_time[row, stage] = (times[index], times[index - 1])
+                self.stage_room[row, stage] = (rooms[row][index], rooms[row][index - 1])
+                self.stage_inner[row, stage] = (index < n - 1, index >= 2)
+                span = (times[index] - times[index - 1]) / 2.0
+                self.stage_gate[row, stage] = (min(GATE_APPROACH, span), min(GATE_RELEASE, span))
                 goal = points[index]
                 self.goal[row, stage] = goal[:2]
                 if index + 1 < n:
@@ -364,6 +415,12 @@ class _Plans:
         self.start, self.end = np.zeros(count), np.zeros(count)
         self.goal_now, self.slide_now = np.zeros((2, count)), np.zeros((2, count))
         self.goal_end_now, self.handover_now = np.zeros(count), np.zeros(count)
+        self.index = np.zeros(count, dtype=np.intp)
+        self.point, self.point_before = np.zeros((3, count)), np.zeros((3, count))
+        self.time, self.time_before = np.zeros(count), np.zeros(count)
+        self.room, self.room_before = np.zeros(count), np.zeros(count)
+        self.inner, self.inner_before = np.zeros(count, dtype=bool), np.zeros(count, dtype=bool)
+        self.approach, self.release = np.zeros(count), np.zeros(count)
         self._load(np.arange(count))
 
     def _load(self, rows: Index) -> None:
@@ -381,6 +438,13 @@ class _Plans:
         self.slide_now[:, rows] = self.goal_slide[rows, stage].T
         self.goal_end_now[rows] = self.goal_end[rows, stage]
         self.handover_now[rows] = self.goal_handover[rows, stage]
+        self.index[rows] = self.stage_index[rows, stage]
+        self.point[:, rows] = self.stage_point[rows, stage, 0].T
+        self.point_before[:, rows] = self.stage_point[rows, stage, 1].T
+        self.time[rows], self.time_before[rows] = self.stage_time[rows, stage].T
+        self.room[rows], self.room_before[rows] = self.stage_room[rows, stage].T
+        self.inner[rows], self.inner_before[rows] = self.stage_inner[rows, stage].T
+        self.approach[rows], self.release[rows] = self.stage_gate[rows, stage].T
 
     def advance(self, t: Array) -> None:
         """Move each scenario to the stage its time ``t`` falls in."""
@@ -399,9 +463,13 @@ class _Plans:
         acceleration = self.k3x6 * tau + self.k2x2
         return position, velocity, acceleration
 
-    def goal_at(self, t: Array) -> tuple[Array, Array]:
-        """ControlLaw._goal: p_j, sliding to p_j+1 over the segment's last GOAL_HANDOVER."""
-        share = _smoothstep((t - self.goal_end_now + self.handover_now) / self.handover_now)
+    def goal_at(self, t: Array, behind: Array) -> tuple[Array, Array]:
+        """ControlLaw._goal: p_j, sliding to p_j+1 over the segment's last GOAL_HANDOVER as
+        far as the arm keeps to the way to p_j."""
+        low, high = GOAL_KEPT
+        share = _smoothstep((t - self.goal_end_now + self.handover_now) / self.handover_now) * (
+            1.0 - _smoothstep((behind - low) / (high - low))
+        )
         return (
             self.goal_now[0] + share * self.slide_now[0],
             self.goal_now[1] + share * self.slide_now[1],
@@ -532,204 +600,6 @@ def _falling_then_rising(
     )
 
 
-# --- the measures of runs, fed a block of ticks at a time --------------------------------
-
-
-class MeasureStream:
-    """The measures of :func:`sim.measures.compute_measures` for many runs, from their logs
-    fed in blocks of ticks (columns named as in the run log, shaped (ticks, runs)).
-
-    Only what the measures need is carried from block to block (minima, sums, the last
-    JERK_WINDOW - 1 rows, the length of a run of slow ticks), so a batch of thousands of
-    runs never holds a whole log. ``valid`` marks the ticks that count: a run that has
-    finished is still fed, but no longer counted.
-    """
-
-    COLUMNS = (
-        "t",
-        "clock",
-        "theta1",
-        "theta2",
-        "theta1_rate",
-        "theta2_rate",
-        "d3_rate",
-        "command_theta1",
-        "command_theta2",
-        "x",
-        "y",
-        "z",
-        "reference_speed",
-        "clearance",
-    )
-
-    def __init__(self, scenarios: Sequence[Scenario]) -> None:
-        first = scenarios[0]
-        self.robot = first.robot
-        self.period = first.controller.period
-        if any(s.robot != self.robot or s.controller.period != self.period for s in scenarios):
-            raise ValueError("runs measured together must share the robot and the rate")
-        count = len(scenarios)
-        half = JERK_WINDOW // 2
-        design = np.vander(np.arange(-half, half + 1, dtype=float), 4, increasing=True)
-        self._weights = np.linalg.pinv(design)[2] * 2.0 / self.period**2
-        self._counts = [len(s.waypoints) for s in scenarios]
-        self._waypoints = np.full((count, max(self._counts), 3), math.inf)
-        for row, scenario in enumerate(scenarios):
-            self._waypoints[row, : self._counts[row]] = [
-                (w.x, w.y, w.z) for w in scenario.waypoints
-            ]
-        self._last = np.array(self._counts) - 1
-        self._start = np.array([s.waypoints[0].t for s in scenarios])
-        self._end = np.array([s.waypoints[-1].t for s in scenarios])
-        self._before_last = np.array([s.waypoints[-2].t for s in scenarios])
-        self._threshold = np.array([STOP_SPEED_FRACTION * nominal_speed(s) for s in scenarios])
-        self._rows = np.arange(count)
-        self._min_clearance = np.full(count, math.inf)
-        self._misses = np.full((count, self._waypoints.shape[1]), math.inf)
-        self._peak = np.zeros(count)
-        self._square_sum = np.zeros(count)
-        self._windows = np.zeros(count, dtype=np.int64)
-        self._jump = np.zeros(count)
-        self._length = np.zeros(count)
-        self._completion = np.full(count, math.nan)
-        self._stops = np.zeros(count, dtype=np.int64)
-        self._slow_run = np.zeros(count, dtype=np.int64)
-        self._tail_velocity = np.zeros((0, count, 3))
-        self._tail_clock = np.zeros((0, count))
-        self._tail_position = np.zeros((0, count, 3))
-        self._tail_command = np.zeros((0, count, 2))
-
-    def update(self, columns: Mapping[str, Array], valid: Mask) -> None:
-        """Fold in one block: each column (ticks, runs); ``valid`` (ticks, runs)."""
-        t, clock = columns["t"], columns["clock"]
-        vx, vy = tcp_velocity(
-            self.robot,
-            columns["theta1"],
-            columns["theta2"],
-            columns["theta1_rate"],
-            columns["theta2_rate"],
-            np,
-        )
-        velocity = np.stack([vx, vy, -columns["d3_rate"]], axis=-1)
-        position = np.stack([columns["x"], columns["y"], columns["z"]], axis=-1)
-        command = np.stack([columns["command_theta1"], columns["command_theta2"]], axis=-1)
-
-        clearance = np.where(valid, columns["clearance"], math.inf)
-        self._min_clearance = np.minimum(self._min_clearance, clearance.min(axis=0))
-
-        self._fold_jerk(velocity, clock, valid)
-
-        speed = np.hypot(vx, vy)
-        watched = (
-            (columns["reference_speed"] >= self._threshold)
-            & (t >= self._start + STOP_EDGE_MARGIN)
-            & (t <= self._end - STOP_EDGE_MARGIN)
-        )
-        self._fold_stops(watched & (speed < self._threshold) & valid)
-
-        distance = np.linalg.norm(position[:, :, None, :] - self._waypoints[None], axis=-1)
-        self._misses = np.minimum(
-            self._misses, np.where(valid[:, :, None], distance, math.inf).min(axis=0)
-        )
-        to_last = distance[:, self._rows, self._last]
-        done = (to_last <= WAYPOINT_TOLERANCE) & (t >= self._before_last) & valid
-        found = np.isnan(self._completion) & done.any(axis=0)
-        if found.any():
-            first = np.argmax(done, axis=0)
-            self._completion[found] = clock[first[found], self._rows[found]] - self._start[found]
-
-        command = np.concatenate([self._tail_command, command])
-        position = np.concatenate([self._tail_position, position])
-        counted = valid[len(valid) - len(command) + 1 :]
-        if len(command) > 1:
-            jump = np.abs(np.diff(command, axis=0)).max(axis=-1)
-            self._jump = np.maximum(self._jump, np.where(counted, jump, 0.0).max(axis=0))
-            step = np.linalg.norm(np.diff(position, axis=0), axis=-1)
-            self._length += _running_sum(np.where(counted, step, 0.0))
-        self._tail_command, self._tail_position = command[-1:], position[-1:]
-
-    def _fold_jerk(self, velocity: Array, clock: Array, valid: Mask) -> None:
-        """Jerk from sim.measures.second_derivative's cubic fit, window by window (the weighted
-        sum written out, in a fixed order)."""
-        series = np.concatenate([self._tail_velocity, velocity])
-        clocks = np.concatenate([self._tail_clock, clock])
-        if len(series) >= JERK_WINDOW:
-            count = len(series) - JERK_WINDOW + 1
-            fitted = self._weights[0] * series[:count]
-            for lag in range(1, JERK_WINDOW):
-                fitted = fitted + self._weights[lag] * series[lag : lag + count]
-            jerk = np.linalg.norm(fitted, axis=-1)
-            gaps = np.diff(clocks, axis=0) > 1.5 * self.period
-            spans_gap = np.lib.stride_tricks.sliding_window_view(gaps, JERK_WINDOW - 1, axis=0)
-            counted = valid[len(valid) - count :] & ~spans_gap.any(axis=-1)
-            self._peak = np.maximum(self._peak, np.where(counted, jerk, 0.0).max(axis=0))
-            self._square_sum += _running_sum(np.where(counted, jerk * jerk, 0.0))
-            self._windows += counted.sum(axis=0)
-        self._tail_velocity = series[-(JERK_WINDOW - 1) :]
-        self._tail_clock = clocks[-(JERK_WINDOW - 1) :]
-
-    def _fold_stops(self, slow: Mask) -> None:
-        """Count runs of at least STOP_MIN_TICKS slow ticks, across blocks."""
-        index = np.arange(len(slow))[:, None]
-        last_fast = np.maximum.accumulate(np.where(slow, -1, index), axis=0)
-        length = index - last_fast + np.where(last_fast < 0, self._slow_run, 0)
-        ends = slow.copy()
-        ends[:-1] &= ~slow[1:]
-        ends[-1] = False
-        self._stops += (ends & (length >= STOP_MIN_TICKS)).sum(axis=0)
-        self._slow_run = np.where(slow[-1], length[-1], 0)
-
-    def measures(self) -> list[Measures]:
-        """The measures of every run, in the order of the scenarios."""
-        stops = self._stops + (self._slow_run >= STOP_MIN_TICKS)
-        rms = np.sqrt(self._square_sum / np.maximum(self._windows, 1))
-        return [
-            Measures(
-                collision_free=bool(self._min_clearance[row] > 0.0),
-                min_clearance=float(self._min_clearance[row]),
-                stops=int(stops[row]),
-                peak_jerk=float(self._peak[row]),
-                rms_jerk=float(rms[row]),
-                max_command_jump=float(self._jump[row]),
-                completion_time=float(self._completion[row]),
-                path_length=float(self._length[row]),
-                waypoint_miss=tuple(float(m) for m in self._misses[row, : self._counts[row]]),
-            )
-            for row in self._rows
-        ]
-
-
-def _running_sum(values: Array) -> Array:
-    """Sums over axis 0 added in order, whatever the array's layout (``sum`` adds pairwise
-    along a contiguous axis): a run's measures do not depend on the batch it ran in."""
-    return np.asarray(np.cumsum(values, axis=0)[-1])
-
-
-def nominal_speed(scenario: Scenario) -> float:
-    """The plan's mean planar speed, from its length over PLAN_SAMPLES points (as
-    compute_measures takes it, evaluated on arrays)."""
-    waypoints = scenario.waypoints
-    trajectory = plan_of(scenario)
-    samples = np.linspace(waypoints[0].t, waypoints[-1].t, 2001)
-    points = evaluate_positions(trajectory, samples)
-    length = float(np.sum(np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1)))
-    return length / (waypoints[-1].t - waypoints[0].t)
-
-
-def evaluate_positions(trajectory: Trajectory, times: Array) -> Array:
-    """``trajectory.evaluate(t)[0]`` for each of ``times`` (within the plan), bit for bit."""
-    starts = np.array(trajectory.times[:-1])
-    segment = np.searchsorted(starts, times, side="right") - 1
-    k = np.array(
-        [
-            [trajectory.segment(i, axis).coefficients for axis in range(trajectory.dims)]
-            for i in range(len(starts))
-        ]
-    )[segment]
-    tau = (times - starts[segment])[:, None]
-    return np.asarray(((k[..., 3] * tau + k[..., 2]) * tau + k[..., 1]) * tau + k[..., 0])
-
-
 # --- the batch ---------------------------------------------------------------------------
 
 
@@ -756,7 +626,10 @@ class _Batch:
         self.count = count
         self.ticks = np.array([round(s.duration / self.period) + 1 for s in scenarios])
         self.start = np.array([s.waypoints[0].t for s in scenarios])
-        self.plans = _Plans([plan_of(s) for s in scenarios])
+        # Each scenario's own law gives its plan and its waypoints' free room (ControlLaw's
+        # _free_room, taken from there rather than computed a second way).
+        laws = [ControlLaw.for_scenario(s) for s in scenarios]
+        self.plans = _Plans([law.trajectory for law in laws], [law._room for law in laws])
         obstacles = [s.obstacle for s in scenarios]
         self.obstacle = _Sections(obstacles)
         self.aim = _Sections(
@@ -774,6 +647,11 @@ class _Batch:
         )
         self.side = np.zeros(count)
         self.previous = np.zeros((3, count))
+        self.progress = self.start.copy()
+        self.rate = np.ones(count)
+        self.last_t = self.start.copy()
+        self.reached = np.zeros(count, dtype=np.intp)
+        self.rate_step = self.period / RATE_CHANGE
         robot = self.robot
         self.speed_limits = np.array([[limit] for limit in robot.speed_limits])
         self.step_limits = np.array([[limit * self.period] for limit in robot.accel_limits])
@@ -800,24 +678,37 @@ class _Batch:
         pz = robot.d0 - d3
 
         plans = self.plans
-        plans.advance(t)
-        reference, reference_velocity, reference_acceleration = plans.evaluate(t)
-        goal_x, goal_y = plans.goal_at(t)
-        measurement = self._measure(px, py, pz, goal_x, goal_y)
-        present, clearance, d_left, d_right, beta, ahead = measurement
+        progress = self.progress = self.progress + self.rate * _max(t - self.last_t, 0.0)
+        self.last_t = t
+        plans.advance(progress)
+        reference, plan_velocity, plan_acceleration = plans.evaluate(progress)
+        tcp = np.stack([px, py, pz])
+        behind, behind_passed = self._behind(tcp, reference)
+        self.rate = _min(
+            _max(self._wanted_rate(progress, behind, behind_passed), self.rate - self.rate_step),
+            self.rate + self.rate_step,
+        )
+        reference_velocity = self.rate * plan_velocity
+        squared = self.rate * self.rate
+        reference_acceleration = squared * plan_acceleration
+        goal_x, goal_y = plans.goal_at(progress, behind)
+        heading_cos, heading_sin = np.cos(self.heading), np.sin(self.heading)
+        measurement = self._measure(px, py, pz, goal_x, goal_y, heading_cos, heading_sin)
+        clearance, d_left, d_right = measurement[1], measurement[2], measurement[3]
         min_distance = _min(d_left, d_right)
 
-        tracking_v, tracking_omega, planned_speed = self._plan_tracking(
+        tracking_v, tracking_omega = self._plan_tracking(
             px, py, reference, reference_velocity, reference_acceleration
         )
         avoiding_v, avoiding_omega = self._avoid(measurement, min_distance, px, py)
-        k_t, k_c = self._weights(present, clearance, min_distance, beta, ahead)
+        at_waypoint = self._at_waypoint(progress, px, py)
+        k_t, k_c = self._weights(measurement, min_distance, at_waypoint)
         total = k_t + k_c
         blended_v = (k_t * tracking_v + k_c * avoiding_v) / total
         blended_omega = (k_t * tracking_omega + k_c * avoiding_omega) / total
 
-        vx = blended_v * np.cos(self.heading)
-        vy = blended_v * np.sin(self.heading)
+        vx = blended_v * heading_cos
+        vy = blended_v * heading_sin
         vz = reference_velocity[2] + config.height_gain * (reference[2] - pz)
         rate1, rate2 = self._joint_rates(theta2, sin1, cos1, sin12, cos12, vx, vy)
         command = self._limit(np.stack([rate1, rate2, -vz]))
@@ -838,15 +729,74 @@ class _Batch:
             "x": px,
             "y": py,
             "z": pz,
-            "reference_speed": planned_speed,
+            "reference_speed": _norm2(plan_velocity[0], plan_velocity[1]),
             "clearance": clearance,
+            "progress": progress,
             "k_c": k_c,
         }
 
+    def _behind(self, tcp: Array, reference: Array) -> tuple[Array, Array]:
+        """ControlLaw._mark_reached, then _behind of p_j and of p_j-1."""
+        plans = self.plans
+        index = plans.index
+        for candidate, point in ((index - 1, plans.point_before), (index, plans.point)):
+            passed = (candidate > self.reached) & (_norm3(tcp - point) <= PASSED)
+            self.reached = np.where(passed, candidate, self.reached)
+        to_reference = _norm3(tcp - reference)
+        return (
+            np.where(
+                index <= self.reached,
+                -math.inf,
+                0.5 * (_norm3(tcp - plans.point) + to_reference - _norm3(reference - plans.point)),
+            ),
+            np.where(
+                index - 1 <= self.reached,
+                -math.inf,
+                0.5
+                * (
+                    _norm3(tcp - plans.point_before)
+                    + to_reference
+                    - _norm3(reference - plans.point_before)
+                ),
+            ),
+        )
+
+    def _wanted_rate(self, progress: Array, behind: Array, behind_passed: Array) -> Array:
+        """ControlLaw._wanted_rate: the plan slows near an inner waypoint the arm is off."""
+        plans = self.plans
+        low, high = BEHIND
+        approach, release = plans.approach, plans.release
+        gate = _smoothstep((progress - plans.time + approach) / approach)
+        hold = np.where(plans.inner, gate * _smoothstep((behind - low) / (high - low)), 0.0)
+        gate = 1.0 - _smoothstep((progress - plans.time_before) / release)
+        hold = np.where(
+            plans.inner_before,
+            _max(hold, gate * _smoothstep((behind_passed - low) / (high - low))),
+            hold,
+        )
+        return 1.0 - hold
+
+    def _at_waypoint(self, progress: Array, px: Array, py: Array) -> Array:
+        """ControlLaw._at_waypoint: how deep the TCP is in the free room of p_j (or p_j-1)."""
+        plans = self.plans
+        share = _smoothstep((progress - plans.time_before) / plans.release)
+        return _max(
+            share * _depth(plans.room, plans.point, px, py),
+            (1.0 - share) * _depth(plans.room_before, plans.point_before, px, py),
+        )
+
     def _measure(
-        self, px: Array, py: Array, pz: Array, goal_x: Array, goal_y: Array
-    ) -> tuple[Mask, Array, Array, Array, Array, Array]:
-        """Module DM (controller.obstacle.measure): present, clearance, d_L, d_R, beta, ahead.
+        self,
+        px: Array,
+        py: Array,
+        pz: Array,
+        goal_x: Array,
+        goal_y: Array,
+        heading_cos: Array,
+        heading_sin: Array,
+    ) -> _Measurement:
+        """Module DM (controller.obstacle.measure): present, clearance, d_L, d_R, beta, ahead,
+        toward.
 
         Measured only where the TCP is below the obstacle's top and within the sensing range
         of a circle round its section: elsewhere the scalar code finds it absent too.
@@ -859,19 +809,27 @@ class _Batch:
         clearance = np.full(self.count, math.inf)
         d_left, d_right = np.full(self.count, sensing_range), np.full(self.count, sensing_range)
         beta, ahead = np.full(self.count, math.pi), np.full(self.count, -1.0)
+        toward = np.full(self.count, -1.0)
         if len(rows):
             found = _measure(
-                obstacle.take(rows), sensing_range, px[rows], py[rows], goal_x[rows], goal_y[rows]
+                obstacle.take(rows),
+                sensing_range,
+                px[rows],
+                py[rows],
+                goal_x[rows],
+                goal_y[rows],
+                heading_cos[rows],
+                heading_sin[rows],
             )
             present[rows] = found[0]
             for array, values, nothing in zip(
-                (clearance, d_left, d_right, beta, ahead),
+                (clearance, d_left, d_right, beta, ahead, toward),
                 found[1:],
-                (math.inf, sensing_range, sensing_range, math.pi, -1.0),
+                (math.inf, sensing_range, sensing_range, math.pi, -1.0, -1.0),
                 strict=True,
             ):
                 array[rows] = np.where(found[0], values, nothing)
-        return present, clearance, d_left, d_right, beta, ahead
+        return present, clearance, d_left, d_right, beta, ahead, toward
 
     def _plan_tracking(
         self,
@@ -880,8 +838,8 @@ class _Batch:
         reference: Array,
         reference_velocity: Array,
         reference_acceleration: Array,
-    ) -> tuple[Array, Array, Array]:
-        """PT (controller.behaviours.plan_tracking): v, omega, and the planned speed."""
+    ) -> tuple[Array, Array]:
+        """PT (controller.behaviours.plan_tracking): v and omega."""
         config = self.config
         error_x, error_y = reference[0] - px, reference[1] - py
         vx, vy = reference_velocity[0], reference_velocity[1]
@@ -891,8 +849,12 @@ class _Batch:
         along_x, along_y = vx / divisor, vy / divisor
         lag = error_x * along_x + error_y * along_y
         offset = along_x * error_y - along_y * error_x
-        speed = _min(_max(planned_speed + config.position_gain * lag, 0.0), config.speed_max)
-        target = np.arctan2(vy, vx) + np.arctan2(config.position_gain * offset, planned_speed)
+        along = _max(
+            planned_speed + config.position_gain * lag, AHEAD_SPEED_FRACTION * planned_speed
+        )
+        across = config.position_gain * offset
+        speed = _min(_norm2(along, across), config.speed_max)
+        target = np.arctan2(vy, vx) + np.arctan2(across, along)
         ax, ay = reference_acceleration[0], reference_acceleration[1]
         feedforward = (vx * ay - vy * ax) / (divisor * divisor)
         error = _wrap(target - self.heading)
@@ -905,18 +867,18 @@ class _Batch:
             still = distance < 1e-9
             v = np.where(at_rest, np.where(still, 0.0, speed * _max(np.cos(error), 0.0)), v)
             omega = np.where(at_rest, np.where(still, 0.0, config.heading_gain * error), omega)
-        return v, omega, planned_speed
+        return v, omega
 
     def _avoid(
         self,
-        measurement: tuple[Mask, Array, Array, Array, Array, Array],
+        measurement: _Measurement,
         min_distance: Array,
         px: Array,
         py: Array,
     ) -> tuple[Array, Array]:
         """AO with its TL/TR choice (ControlLaw._avoid, behaviours.avoid_obstacle)."""
-        present, clearance, d_left, d_right, _, ahead = measurement
-        engaged = present & ~((ahead <= AHEAD_NONE) & (clearance > 0.0))
+        present, clearance, d_left, d_right, _, ahead, toward = measurement
+        engaged = present & ~((_max(ahead, toward) <= AHEAD_NONE) & (clearance > 0.0))
         chosen = np.where(d_left >= d_right, float(TURN_LEFT), float(TURN_RIGHT))
         self.side = np.where(engaged, np.where(self.side == 0.0, chosen, self.side), 0.0)
         v, omega = np.zeros(self.count), np.zeros(self.count)
@@ -960,11 +922,17 @@ class _Batch:
         return v, omega
 
     def _weights(
-        self, present: Mask, clearance: Array, min_distance: Array, beta: Array, ahead: Array
+        self, measurement: _Measurement, min_distance: Array, at_waypoint: Array
     ) -> tuple[Array, Array]:
         """k_T and k_C of the batch's coordinator (controller.coordination)."""
+        present, clearance, _, _, beta, ahead, toward = measurement
         if self.mode is Mode.CONVENTIONAL:
-            switched = present & (ahead > 0.0) & (clearance < self.config.switch_distance)
+            switched = (
+                present
+                & (ahead > 0.0)
+                & (clearance < self.config.switch_distance)
+                & (at_waypoint == 0.0)
+            )
             return np.where(switched, 0.0, 1.0), np.where(switched, 1.0, 0.0)
         k_t = np.full(self.count, self.k_t_without_obstacle)
         k_c = np.zeros(self.count)
@@ -975,10 +943,11 @@ class _Batch:
             fuzzy_t, fuzzy_c = self.fuzzy.weights(distance, beta[rows])
             half = sensing_range / 2.0
             relevance = _smoothstep((sensing_range - distance) / half)
-            fading = _smoothstep((ahead[rows] - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
+            facing = _max(ahead[rows], toward[rows])
+            fading = _smoothstep((facing - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
             relevance = np.where(clearance[rows] > 0.0, relevance * fading, relevance)
             k_t[rows] = fuzzy_t
-            k_c[rows] = fuzzy_c * relevance
+            k_c[rows] = fuzzy_c * relevance * (1.0 - at_waypoint[rows])
         return k_t, k_c
 
     def _joint_rates(

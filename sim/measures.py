@@ -4,12 +4,14 @@ a co-simulation's controller log, a replayed recording); see ``docs/design.md``.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
-from controller.planner import plan_of
+from controller.planner import Trajectory, plan_of
 from controller.runlog import RunLog
 from protocol.kinematics import tcp_velocity
 from protocol.scenario import WAYPOINT_TOLERANCE as WAYPOINT_TOLERANCE  # the one definition
@@ -26,6 +28,9 @@ STOP_REST_MARGIN = 0.1
 the arm lags the plan, and slowing down to a planned stop is not a stop)."""
 PLAN_SAMPLES = 2001
 """Points of the plan sampled for its length."""
+Array = npt.NDArray[np.float64]
+Mask = npt.NDArray[np.bool_]
+
 JERK_WINDOW = 15
 """Ticks in the local cubic fit that jerk is taken from (30 ms at 500 Hz)."""
 
@@ -68,53 +73,12 @@ TABLE_ROWS = (
 
 
 def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
-    period = scenario.controller.period
-    positions = log.columns("x", "y", "z")
-    vx, vy = tcp_velocity(
-        scenario.robot, log["theta1"], log["theta2"], log["theta1_rate"], log["theta2_rate"], np
-    )
-    velocity = np.column_stack([vx, vy, -log["d3_rate"]])
-    jerk = np.linalg.norm(second_derivative(velocity, period, log["clock"]), axis=1)
-
-    clearance = log["clearance"]
-    min_clearance = float(np.min(clearance)) if len(clearance) else math.inf
-
-    waypoints = scenario.waypoints
-    progress = log["progress"]
-    threshold, rests = stop_threshold_and_rests(scenario)
-    planar_speed = np.hypot(velocity[:, 0], velocity[:, 1])
-    watched = (
-        (log["reference_speed"] >= threshold)
-        & (progress >= waypoints[0].t + STOP_EDGE_MARGIN)
-        & (progress <= waypoints[-1].t - STOP_EDGE_MARGIN)
-        & ~near_any(progress, rests, STOP_REST_MARGIN)
-    )
-    stops = _count_runs(watched & (planar_speed < threshold), STOP_MIN_TICKS)
-
-    misses = tuple(
-        float(np.min(np.linalg.norm(positions - (w.x, w.y, w.z), axis=1))) for w in waypoints
-    )
-    last = waypoints[-1]
-    done = (np.linalg.norm(positions - (last.x, last.y, last.z), axis=1) <= WAYPOINT_TOLERANCE) & (
-        progress >= waypoints[-2].t
-    )
-    clock = log["clock"]
-    completion = float(clock[np.argmax(done)] - waypoints[0].t) if done.any() else math.nan
-
-    commands = log.columns("command_theta1", "command_theta2")
-    return Measures(
-        collision_free=bool(min_clearance > 0.0),
-        min_clearance=min_clearance,
-        stops=stops,
-        peak_jerk=float(np.max(jerk)) if len(jerk) else 0.0,
-        rms_jerk=float(np.sqrt(np.mean(jerk**2))) if len(jerk) else 0.0,
-        max_command_jump=float(np.max(np.abs(np.diff(commands, axis=0))))
-        if len(commands) > 1
-        else 0.0,
-        completion_time=completion,
-        path_length=float(np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=1))),
-        waypoint_miss=misses,
-    )
+    """The measures of one run's log: :class:`MeasureStream` fed the whole log at once."""
+    stream = MeasureStream([scenario])
+    if len(log):
+        columns = {name: log[name][:, None] for name in MeasureStream.COLUMNS}
+        stream.update(columns, np.ones((len(log), 1), dtype=bool))
+    return stream.measures()[0]
 
 
 def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
@@ -124,7 +88,7 @@ def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
     waypoints = scenario.waypoints
     planned = plan_of(scenario)
     samples = np.linspace(waypoints[0].t, waypoints[-1].t, PLAN_SAMPLES)
-    planned_points = np.array([planned.evaluate(float(t))[0] for t in samples])
+    planned_points = evaluate_positions(planned, samples)
     planned_length = float(np.sum(np.linalg.norm(np.diff(planned_points[:, :2], axis=0), axis=1)))
     threshold = STOP_SPEED_FRACTION * planned_length / (waypoints[-1].t - waypoints[0].t)
     rests = [
@@ -135,38 +99,208 @@ def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
     return threshold, np.array(rests)
 
 
-def near_any(values: np.ndarray, marks: np.ndarray, margin: float) -> np.ndarray:
-    """Which ``values`` lie within ``margin`` of one of ``marks``."""
-    return np.asarray(np.any(np.abs(values[:, None] - marks[None, :]) <= margin, axis=1))
+class MeasureStream:
+    """The measures of many runs, from their logs fed in blocks of ticks (columns named as in
+    the run log, shaped (ticks, runs)): the batch simulator's thousands of runs, or one log.
 
-
-def second_derivative(series: np.ndarray, period: float, clock: np.ndarray) -> np.ndarray:
-    """Second derivative of each column by a Savitzky-Golay filter (cubic, JERK_WINDOW ticks).
-
-    Differencing the measured velocity twice would mostly measure the wire's quantisation
-    (1e-3 rad/s per step is ~100 m/s^3 of jerk at 500 Hz); the local cubic fit removes that
-    while keeping the jerk of a switch, which lasts several ticks through the actuator lag.
-    Only windows of consecutive ticks count: across a hold there is no measured state, and a
-    fit over the gap would invent jerk.
+    Only what the measures need is carried from block to block (minima, sums, the last
+    JERK_WINDOW - 1 rows, the length of a run of slow ticks), so a batch of thousands of
+    runs never holds a whole log. ``valid`` marks the ticks that count: a run that has
+    finished is still fed, but no longer counted.
     """
-    half = JERK_WINDOW // 2
-    if len(series) < JERK_WINDOW:
-        return np.zeros((0, series.shape[1]))
-    offsets = np.arange(-half, half + 1, dtype=float)
-    design = np.vander(offsets, 4, increasing=True)
-    weights = np.linalg.pinv(design)[2] * 2.0 / period**2
-    windows = np.lib.stride_tricks.sliding_window_view(series, JERK_WINDOW, axis=0)
-    gaps = np.diff(clock) > 1.5 * period
-    spans_gap = np.convolve(gaps, np.ones(JERK_WINDOW - 1), mode="valid") > 0
-    return np.asarray(windows @ weights)[~spans_gap]
+
+    COLUMNS = (
+        "t",
+        "clock",
+        "theta1",
+        "theta2",
+        "theta1_rate",
+        "theta2_rate",
+        "d3_rate",
+        "command_theta1",
+        "command_theta2",
+        "x",
+        "y",
+        "z",
+        "reference_speed",
+        "clearance",
+        "progress",
+    )
+
+    def __init__(self, scenarios: Sequence[Scenario]) -> None:
+        first = scenarios[0]
+        self.robot = first.robot
+        self.period = first.controller.period
+        if any(s.robot != self.robot or s.controller.period != self.period for s in scenarios):
+            raise ValueError("runs measured together must share the robot and the rate")
+        count = len(scenarios)
+        half = JERK_WINDOW // 2
+        design = np.vander(np.arange(-half, half + 1, dtype=float), 4, increasing=True)
+        self._weights = np.linalg.pinv(design)[2] * 2.0 / self.period**2
+        self._counts = [len(s.waypoints) for s in scenarios]
+        self._waypoints = np.full((count, max(self._counts), 3), math.inf)
+        for row, scenario in enumerate(scenarios):
+            self._waypoints[row, : self._counts[row]] = [
+                (w.x, w.y, w.z) for w in scenario.waypoints
+            ]
+        self._last = np.array(self._counts) - 1
+        self._start = np.array([s.waypoints[0].t for s in scenarios])
+        self._end = np.array([s.waypoints[-1].t for s in scenarios])
+        self._before_last = np.array([s.waypoints[-2].t for s in scenarios])
+        self._threshold = np.zeros(count)
+        self._rests = np.full((count, max(self._counts)), math.nan)
+        for row, scenario in enumerate(scenarios):
+            threshold, rests = stop_threshold_and_rests(scenario)
+            self._threshold[row] = threshold
+            self._rests[row, : len(rests)] = rests
+        self._rows = np.arange(count)
+        self._min_clearance = np.full(count, math.inf)
+        self._misses = np.full((count, self._waypoints.shape[1]), math.inf)
+        self._peak = np.zeros(count)
+        self._square_sum = np.zeros(count)
+        self._windows = np.zeros(count, dtype=np.int64)
+        self._jump = np.zeros(count)
+        self._length = np.zeros(count)
+        self._completion = np.full(count, math.nan)
+        self._stops = np.zeros(count, dtype=np.int64)
+        self._slow_run = np.zeros(count, dtype=np.int64)
+        self._tail_velocity = np.zeros((0, count, 3))
+        self._tail_clock = np.zeros((0, count))
+        self._tail_position = np.zeros((0, count, 3))
+        self._tail_command = np.zeros((0, count, 2))
+
+    def update(self, columns: Mapping[str, Array], valid: Mask) -> None:
+        """Fold in one block: each column (ticks, runs); ``valid`` (ticks, runs)."""
+        progress, clock = columns["progress"], columns["clock"]
+        vx, vy = tcp_velocity(
+            self.robot,
+            columns["theta1"],
+            columns["theta2"],
+            columns["theta1_rate"],
+            columns["theta2_rate"],
+            np,
+        )
+        velocity = np.stack([vx, vy, -columns["d3_rate"]], axis=-1)
+        position = np.stack([columns["x"], columns["y"], columns["z"]], axis=-1)
+        command = np.stack([columns["command_theta1"], columns["command_theta2"]], axis=-1)
+
+        clearance = np.where(valid, columns["clearance"], math.inf)
+        self._min_clearance = np.minimum(self._min_clearance, clearance.min(axis=0))
+
+        self._fold_jerk(velocity, clock, valid)
+
+        speed = np.hypot(vx, vy)
+        watched = (
+            (columns["reference_speed"] >= self._threshold)
+            & (progress >= self._start + STOP_EDGE_MARGIN)
+            & (progress <= self._end - STOP_EDGE_MARGIN)
+            & ~near_any(progress, self._rests, STOP_REST_MARGIN)
+        )
+        self._fold_stops(watched & (speed < self._threshold) & valid)
+
+        distance = np.linalg.norm(position[:, :, None, :] - self._waypoints[None], axis=-1)
+        self._misses = np.minimum(
+            self._misses, np.where(valid[:, :, None], distance, math.inf).min(axis=0)
+        )
+        to_last = distance[:, self._rows, self._last]
+        done = (to_last <= WAYPOINT_TOLERANCE) & (progress >= self._before_last) & valid
+        found = np.isnan(self._completion) & done.any(axis=0)
+        if found.any():
+            first = np.argmax(done, axis=0)
+            self._completion[found] = clock[first[found], self._rows[found]] - self._start[found]
+
+        command = np.concatenate([self._tail_command, command])
+        position = np.concatenate([self._tail_position, position])
+        counted = valid[len(valid) - len(command) + 1 :]
+        if len(command) > 1:
+            jump = np.abs(np.diff(command, axis=0)).max(axis=-1)
+            self._jump = np.maximum(self._jump, np.where(counted, jump, 0.0).max(axis=0))
+            step = np.linalg.norm(np.diff(position, axis=0), axis=-1)
+            self._length += _running_sum(np.where(counted, step, 0.0))
+        self._tail_command, self._tail_position = command[-1:], position[-1:]
+
+    def _fold_jerk(self, velocity: Array, clock: Array, valid: Mask) -> None:
+        """Jerk: the second derivative of the TCP velocity by a Savitzky-Golay filter (cubic,
+        JERK_WINDOW ticks), the weighted sum written out in a fixed order.
+
+        Differencing the measured velocity twice would mostly measure the wire's quantisation
+        (1e-3 rad/s per step is ~100 m/s^3 of jerk at 500 Hz); the local cubic fit removes
+        that while keeping the jerk of a switch, which lasts several ticks through the
+        actuator lag. Only windows of consecutive ticks count: across a hold there is no
+        measured state, and a fit over the gap would invent jerk.
+        """
+        series = np.concatenate([self._tail_velocity, velocity])
+        clocks = np.concatenate([self._tail_clock, clock])
+        if len(series) >= JERK_WINDOW:
+            count = len(series) - JERK_WINDOW + 1
+            fitted = self._weights[0] * series[:count]
+            for lag in range(1, JERK_WINDOW):
+                fitted = fitted + self._weights[lag] * series[lag : lag + count]
+            jerk = np.linalg.norm(fitted, axis=-1)
+            gaps = np.diff(clocks, axis=0) > 1.5 * self.period
+            spans_gap = np.lib.stride_tricks.sliding_window_view(gaps, JERK_WINDOW - 1, axis=0)
+            counted = valid[len(valid) - count :] & ~spans_gap.any(axis=-1)
+            self._peak = np.maximum(self._peak, np.where(counted, jerk, 0.0).max(axis=0))
+            self._square_sum += _running_sum(np.where(counted, jerk * jerk, 0.0))
+            self._windows += counted.sum(axis=0)
+        self._tail_velocity = series[-(JERK_WINDOW - 1) :]
+        self._tail_clock = clocks[-(JERK_WINDOW - 1) :]
+
+    def _fold_stops(self, slow: Mask) -> None:
+        """Count runs of at least STOP_MIN_TICKS slow ticks, across blocks."""
+        index = np.arange(len(slow))[:, None]
+        last_fast = np.maximum.accumulate(np.where(slow, -1, index), axis=0)
+        length = index - last_fast + np.where(last_fast < 0, self._slow_run, 0)
+        ends = slow.copy()
+        ends[:-1] &= ~slow[1:]
+        ends[-1] = False
+        self._stops += (ends & (length >= STOP_MIN_TICKS)).sum(axis=0)
+        self._slow_run = np.where(slow[-1], length[-1], 0)
+
+    def measures(self) -> list[Measures]:
+        """The measures of every run, in the order of the scenarios."""
+        stops = self._stops + (self._slow_run >= STOP_MIN_TICKS)
+        rms = np.sqrt(self._square_sum / np.maximum(self._windows, 1))
+        return [
+            Measures(
+                collision_free=bool(self._min_clearance[row] > 0.0),
+                min_clearance=float(self._min_clearance[row]),
+                stops=int(stops[row]),
+                peak_jerk=float(self._peak[row]),
+                rms_jerk=float(rms[row]),
+                max_command_jump=float(self._jump[row]),
+                completion_time=float(self._completion[row]),
+                path_length=float(self._length[row]),
+                waypoint_miss=tuple(float(m) for m in self._misses[row, : self._counts[row]]),
+            )
+            for row in self._rows
+        ]
 
 
-def _count_runs(flags: np.ndarray, min_length: int) -> int:
-    """How many runs of consecutive True values are at least ``min_length`` long."""
-    padded = np.concatenate([[False], flags, [False]]).astype(np.int8)
-    edges = np.diff(padded)
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    return int(np.sum(ends - starts >= min_length))
+def _running_sum(values: Array) -> Array:
+    """Sums over axis 0 added in order, whatever the array's layout (``sum`` adds pairwise
+    along a contiguous axis): a run's measures do not depend on the batch it ran in."""
+    return np.asarray(np.cumsum(values, axis=0)[-1])
+
+
+def near_any(values: np.ndarray, marks: np.ndarray, margin: float) -> np.ndarray:
+    """Which ``values`` lie within ``margin`` of one of ``marks`` (along the last axis of
+    ``marks``, which may hold one row of marks per column of ``values``; NaN marks none)."""
+    return np.asarray(np.any(np.abs(values[..., None] - marks) <= margin, axis=-1))
+
+
+def evaluate_positions(trajectory: Trajectory, times: Array) -> Array:
+    """``trajectory.evaluate(t)[0]`` for each of ``times`` (within the plan), bit for bit."""
+    starts = np.array(trajectory.times[:-1])
+    segment = np.searchsorted(starts, times, side="right") - 1
+    k = np.array(
+        [
+            [trajectory.segment(i, axis).coefficients for axis in range(trajectory.dims)]
+            for i in range(len(starts))
+        ]
+    )[segment]
+    tau = (times - starts[segment])[:, None]
+    return np.asarray(((k[..., 3] * tau + k[..., 2]) * tau + k[..., 1]) * tau + k[..., 0])
 
 
 def format_table(results: dict[str, Measures]) -> str:

@@ -20,14 +20,13 @@ from sim.batch import (
     WIRE_COMMAND,
     WIRE_POSITION,
     WIRE_VELOCITY,
-    MeasureStream,
     _Fuzzy,
     _max,
     _min,
     _Sections,
     simulate_batch,
 )
-from sim.measures import Measures, compute_measures
+from sim.measures import Measures, MeasureStream, compute_measures
 from sim.simulation import simulate
 
 TOLERANCE = 1e-9
