@@ -15,6 +15,7 @@ import csv
 import json
 import math
 import multiprocessing
+import queue
 import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -83,8 +84,6 @@ _progress: Any = None
 
 
 def _start_worker(progress: Any) -> None:
-    """Workers leave Ctrl-C to the parent, which stops them."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
     global _progress
     _progress = progress
 
@@ -141,9 +140,24 @@ class Processes:
 
     def __init__(self, workers: int, advance: Callable[[int], None]) -> None:
         context = multiprocessing.get_context("spawn")
-        self._manager = context.Manager()
-        self._progress = self._manager.Queue()
-        self._pool = context.Pool(workers, initializer=_start_worker, initargs=(self._progress,))
+        # Children start with Ctrl-C ignored, which they keep (the parent stops them; one
+        # still importing would print a traceback). Blocked meanwhile, a Ctrl-C for the parent
+        # stays pending (Linux keeps a blocked signal even while it is ignored) until after.
+        self._pool: Any = None
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            try:
+                self._progress = context.Queue()
+                self._pool = context.Pool(
+                    workers, initializer=_start_worker, initargs=(self._progress,)
+                )
+            finally:
+                signal.signal(signal.SIGINT, handler)
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        except BaseException:
+            self.close()
+            raise
         self.advance = advance
 
     def map(self, function: Callable[..., Any], items: Sequence[Any]) -> Iterator[Any]:
@@ -156,15 +170,22 @@ class Processes:
                 except multiprocessing.TimeoutError:
                     continue
                 finally:
-                    while not self._progress.empty():
-                        self.advance(self._progress.get())
+                    self._drain()
                 break
             yield result
 
+    def _drain(self) -> None:
+        """Pass on the progress the workers reported."""
+        try:
+            while True:
+                self.advance(self._progress.get_nowait())
+        except queue.Empty:
+            pass
+
     def close(self) -> None:
-        self._pool.terminate()
-        self._pool.join()
-        self._manager.shutdown()
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
 
 
 class Cluster:

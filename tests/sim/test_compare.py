@@ -122,9 +122,16 @@ def test_ctrl_c_stops_workers_and_exits_130_without_a_traceback(tmp_path: Path) 
         start_new_session=True,  # a group of its own, as a terminal's Ctrl-C reaches
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
-    time.sleep(4.0)
+    assert process.stderr is not None
+    seen = b""
+    while b"generating" not in seen:  # past the imports: it has started its workers
+        chunk = os.read(process.stderr.fileno(), 4096)
+        assert chunk, "scara-compare ended before it started"
+        seen += chunk
+    time.sleep(1.0)
     os.killpg(process.pid, signal.SIGINT)
     _, error = process.communicate(timeout=30)
+    error = seen + error
     assert process.returncode == 130
     assert "interrupted" in error.decode()
     assert "Traceback" not in error.decode()
