@@ -55,6 +55,8 @@ BLOCK_TICKS = 128
 REACH_MARGIN = 1e-6
 """m: DM measures within the sensing range plus the long semi-axis (plus this, for rounding)
 of an obstacle's centre; farther, the clearance exceeds the range and DM finds nothing."""
+COMPACT_SHARE = 0.2
+"""Finished scenarios are dropped from the arrays once they are this share of them."""
 NEWTON_ITERATIONS = 64
 """As in :func:`protocol.geometry._ellipse_distance`."""
 
@@ -103,6 +105,15 @@ def _depth(room: Array, point: Array, px: Array, py: Array) -> Array:
     half = room / 2.0
     inside = 1.0 - _smoothstep((_norm2(px - point[0], py - point[1]) - half) / half)
     return np.asarray(np.where(room <= 0.0, 0.0, inside))
+
+
+def _keep(holder: object, rows: Index, by_row: Sequence[str], by_column: Sequence[str]) -> None:
+    """Keep only the scenarios ``rows`` in the named arrays (scenarios along the first axis,
+    or along the second for the (axis, scenario) arrays ``by_column``)."""
+    for name in by_row:
+        setattr(holder, name, getattr(holder, name)[rows])
+    for name in by_column:
+        setattr(holder, name, getattr(holder, name)[:, rows])
 
 
 def _norm2(x: Array, y: Array) -> Array:
@@ -423,6 +434,56 @@ class _Plans:
         self.approach, self.release = np.zeros(count), np.zeros(count)
         self._load(np.arange(count))
 
+    BY_ROW = (
+        "size",
+        "times",
+        "points",
+        "stage_k",
+        "stage_start",
+        "stage_end",
+        "goal",
+        "goal_slide",
+        "goal_end",
+        "goal_handover",
+        "stage_index",
+        "stage_point",
+        "stage_time",
+        "stage_room",
+        "stage_inner",
+        "stage_gate",
+        "stage",
+        "start",
+        "end",
+        "goal_end_now",
+        "handover_now",
+        "index",
+        "time",
+        "time_before",
+        "room",
+        "room_before",
+        "inner",
+        "inner_before",
+        "approach",
+        "release",
+    )
+    BY_COLUMN = (
+        "k0",
+        "k1",
+        "k2",
+        "k3",
+        "k2x2",
+        "k3x3",
+        "k3x6",
+        "goal_now",
+        "slide_now",
+        "point",
+        "point_before",
+    )
+
+    def keep(self, rows: Index) -> None:
+        """Only the scenarios ``rows`` from now on."""
+        _keep(self, rows, self.BY_ROW, self.BY_COLUMN)
+
     def _load(self, rows: Index) -> None:
         """Take the coefficients and goal of the stage ``rows`` are now in."""
         stage = self.stage[rows]
@@ -661,6 +722,14 @@ class _Batch:
         self.substep = substep
         self.blend = 1.0 - math.exp(-substep / self.plant.time_constant)
         self.max_change = np.array([[limit * substep] for limit in robot.accel_limits])
+
+    def keep(self, rows: Index) -> None:
+        """Only the scenarios ``rows`` from now on (the others have finished)."""
+        by_row = ("ticks", "start", "heading", "side", "progress", "rate", "last_t", "reached")
+        _keep(self, rows, (*by_row, "reach_squared"), ("position", "velocity", "previous"))
+        self.obstacle, self.aim = self.obstacle.take(rows), self.aim.take(rows)
+        self.plans.keep(rows)
+        self.count = len(rows)
 
     def step(self, tick: int) -> dict[str, Array]:
         """One tick for every scenario; the log columns the measures need."""
@@ -1047,10 +1116,12 @@ def simulate_batch(
         batch = _Batch(scenarios, mode, rule_base)
         stream = MeasureStream(scenarios)
         peak_k_c = np.zeros(batch.count)
-        total = int(batch.ticks.max())
+        runs: list[BatchRun | None] = [None] * len(scenarios)
+        original = np.arange(len(scenarios))
         names = MeasureStream.COLUMNS
-        for block_start in range(0, total, BLOCK_TICKS):
-            length = min(BLOCK_TICKS, total - block_start)
+        block_start = 0
+        while batch.count:
+            length = min(BLOCK_TICKS, int(batch.ticks.max()) - block_start)
             block = {name: np.empty((length, batch.count)) for name in names}
             for offset in range(length):
                 tick = block_start + offset
@@ -1063,7 +1134,16 @@ def simulate_batch(
             stream.update(block, valid)
             if on_block is not None:
                 on_block(int(valid.sum()))
-    return [
-        BatchRun(measures, float(peak))
-        for measures, peak in zip(stream.measures(), peak_k_c, strict=True)
-    ]
+            block_start += length
+            finished = batch.ticks <= block_start
+            if finished.sum() >= COMPACT_SHARE * batch.count:
+                # Finished runs leave the arrays: no more work is spent on them.
+                done, going = np.flatnonzero(finished), np.flatnonzero(~finished)
+                for index, measures, peak in zip(
+                    original[done], stream.measures(done), peak_k_c[done], strict=True
+                ):
+                    runs[index] = BatchRun(measures, float(peak))
+                batch.keep(going)
+                stream.keep(going)
+                peak_k_c, original = peak_k_c[going], original[going]
+    return [run for run in runs if run is not None]

@@ -257,8 +257,38 @@ class MeasureStream:
         self._stops += (ends & (length >= STOP_MIN_TICKS)).sum(axis=0)
         self._slow_run = np.where(slow[-1], length[-1], 0)
 
-    def measures(self) -> list[Measures]:
-        """The measures of every run, in the order of the scenarios."""
+    BY_ROW = (
+        "_waypoints",
+        "_last",
+        "_start",
+        "_end",
+        "_before_last",
+        "_threshold",
+        "_rests",
+        "_min_clearance",
+        "_misses",
+        "_peak",
+        "_square_sum",
+        "_windows",
+        "_jump",
+        "_length",
+        "_completion",
+        "_stops",
+        "_slow_run",
+    )
+    BY_COLUMN = ("_tail_velocity", "_tail_clock", "_tail_position", "_tail_command")
+
+    def keep(self, rows: npt.NDArray[np.intp]) -> None:
+        """Only the runs ``rows`` from now on (the others have ended)."""
+        for name in self.BY_ROW:
+            setattr(self, name, getattr(self, name)[rows])
+        for name in self.BY_COLUMN:
+            setattr(self, name, getattr(self, name)[:, rows])
+        self._counts = [self._counts[row] for row in rows]
+        self._rows = np.arange(len(rows))
+
+    def measures(self, rows: npt.NDArray[np.intp] | None = None) -> list[Measures]:
+        """The measures of the runs ``rows`` (all if None), in their order."""
         stops = self._stops + (self._slow_run >= STOP_MIN_TICKS)
         rms = np.sqrt(self._square_sum / np.maximum(self._windows, 1))
         return [
@@ -273,7 +303,7 @@ class MeasureStream:
                 path_length=float(self._length[row]),
                 waypoint_miss=tuple(float(m) for m in self._misses[row, : self._counts[row]]),
             )
-            for row in self._rows
+            for row in (self._rows if rows is None else rows)
         ]
 
 
