@@ -50,8 +50,8 @@ Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
 Index = npt.NDArray[np.intp]
 
-BLOCK_TICKS = 128
-"""Ticks of log kept before they are folded into the measures (memory: 14 columns of this)."""
+BLOCK_TICKS = 64
+"""Ticks of log kept before they are folded into the measures (memory: 15 columns of this)."""
 REACH_MARGIN = 1e-6
 """m: DM measures within the sensing range plus the long semi-axis (plus this, for rounding)
 of an obstacle's centre; farther, the clearance exceeds the range and DM finds nothing."""
