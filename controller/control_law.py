@@ -143,6 +143,9 @@ class ControlLaw:
         # with it the turn rate PT feeds forward, stay those of the plan.
         reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
         squared = rate * rate
+        waited_index = self._waited_for(index)
+        waited = self.trajectory.points[waited_index]
+        pull = (1.0 - rate) * self._depth(waited_index, tcp)
         goal = self._goal(progress, index, behind)
         measurement = measure(self.obstacle, tcp, goal, config.sensing_range, self.heading)
 
@@ -164,7 +167,9 @@ class ControlLaw:
 
         vx = blended.v * math.cos(self.heading)
         vy = blended.v * math.sin(self.heading)
-        vz = reference_velocity[2] + config.height_gain * (reference[2] - tcp[2])
+        vz = reference_velocity[2] + config.height_gain * (
+            reference[2] + pull * (waited[2] - reference[2]) - tcp[2]
+        )
         rate1, rate2 = joint_rates_for(self.robot, theta1, theta2, vx, vy, config.damping)
         command, limited = self._limit((rate1, rate2, -vz))
 
@@ -215,6 +220,16 @@ class ControlLaw:
         distance = length(tcp[0] - point[0], tcp[1] - point[1])
         return 1.0 - smoothstep((distance - room / 2.0) / (room / 2.0))
 
+    def _waited_for(self, index: int) -> int:
+        """The waypoint a waiting plan waits for: p_j-1 until the TCP has passed it, then p_j.
+
+        The height loop steers to its height by 1 - rate (rate limited, so smoothly) times
+        how deep the TCP is in its free room (:meth:`_depth`, 0 far from it): a waiting
+        reference stands short of the waypoint, and so at another height, and an arm held
+        there would never come within PASSED of it while the plan waits for just that.
+        """
+        return max(index - 1, min(self.reached + 1, index))
+
     def _mark_reached(self, index: int, tcp: Point3) -> None:
         """Note when the TCP passes waypoint ``index - 1`` or ``index`` (within PASSED)."""
         points = self.trajectory.points
@@ -223,8 +238,9 @@ class ControlLaw:
                 self.reached = candidate
 
     def _behind(self, index: int, tcp: Point3, reference: tuple[float, ...]) -> float:
-        """How far the TCP is off the way from the reference to waypoint ``index``: half of
-        what going by the TCP adds to the distance, (|TCP p_j| + |TCP ref| - |ref p_j|) / 2.
+        """How far the TCP is off the way from the reference to waypoint ``index`` in the plane
+        (height is the height loop's): half of what going by the TCP adds to the distance,
+        (|TCP p_j| + |TCP ref| - |ref p_j|) / 2.
 
         It is the lag for an arm right behind the reference, zero for one on the way between
         them (ahead of the plan), and counts an arm beside the path (coming round an
@@ -233,9 +249,11 @@ class ControlLaw:
         """
         if index <= self.reached:
             return -math.inf
-        waypoint = self.trajectory.points[index]
+        x, y, _ = self.trajectory.points[index]
         return 0.5 * (
-            distance(tcp, waypoint) + distance(tcp, reference) - distance(reference, waypoint)
+            length(tcp[0] - x, tcp[1] - y)
+            + length(tcp[0] - reference[0], tcp[1] - reference[1])
+            - length(reference[0] - x, reference[1] - y)
         )
 
     def _wanted_rate(
