@@ -778,7 +778,22 @@ class _Batch:
 
         vx = blended_v * heading_cos
         vy = blended_v * heading_sin
-        vz = reference_velocity[2] + config.height_gain * (reference[2] - pz)
+        # ControlLaw._waited_for: p_j-1 until the TCP has passed it, then p_j; the height loop
+        # steers to its height by (1 - rate) times how deep the TCP is in its free room.
+        plans = self.plans
+        waited_is_next = (
+            np.maximum(plans.index - 1, np.minimum(self.reached + 1, plans.index)) == plans.index
+        )
+        waited = np.where(waited_is_next, plans.point, plans.point_before)
+        depth = np.where(
+            waited_is_next,
+            _depth(plans.room, plans.point, px, py),
+            _depth(plans.room_before, plans.point_before, px, py),
+        )
+        pull = (1.0 - self.rate) * depth
+        vz = reference_velocity[2] + config.height_gain * (
+            reference[2] + pull * (waited[2] - reference[2]) - pz
+        )
         rate1, rate2 = self._joint_rates(theta2, sin1, cos1, sin12, cos12, vx, vy)
         command = self._limit(np.stack([rate1, rate2, -vz]))
 
@@ -811,24 +826,17 @@ class _Batch:
         for candidate, point in ((index - 1, plans.point_before), (index, plans.point)):
             passed = (candidate > self.reached) & (_norm3(tcp - point) <= PASSED)
             self.reached = np.where(passed, candidate, self.reached)
-        to_reference = _norm3(tcp - reference)
-        return (
-            np.where(
-                index <= self.reached,
-                -math.inf,
-                0.5 * (_norm3(tcp - plans.point) + to_reference - _norm3(reference - plans.point)),
-            ),
-            np.where(
-                index - 1 <= self.reached,
-                -math.inf,
-                0.5
-                * (
-                    _norm3(tcp - plans.point_before)
-                    + to_reference
-                    - _norm3(reference - plans.point_before)
-                ),
-            ),
-        )
+        to_reference = _norm2(tcp[0] - reference[0], tcp[1] - reference[1])
+        behind = []
+        for index_now, point in ((index, plans.point), (index - 1, plans.point_before)):
+            x, y = point[0], point[1]
+            off = 0.5 * (
+                _norm2(tcp[0] - x, tcp[1] - y)
+                + to_reference
+                - _norm2(reference[0] - x, reference[1] - y)
+            )
+            behind.append(np.where(index_now <= self.reached, -math.inf, off))
+        return behind[0], behind[1]
 
     def _wanted_rate(self, progress: Array, behind: Array, behind_passed: Array) -> Array:
         """ControlLaw._wanted_rate: the plan slows near an inner waypoint the arm is off."""
