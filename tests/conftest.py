@@ -22,7 +22,7 @@ from typing import Any
 import can
 import pytest
 from hypothesis import settings
-from support import Observer, Processes, Transport, free_port, wait_until
+from support import Observer, Processes, Transport, free_port, hil_marks, wait_until
 
 from protocol.zenoh_can.config import router_reachable
 
@@ -33,7 +33,6 @@ settings.register_profile("local", deadline=None)
 settings.register_profile("ci", deadline=None, derandomize=True)
 settings.load_profile("ci" if os.environ.get("CI") else "local")
 
-VCAN0 = Path("/sys/class/net/vcan0")
 ROUTER_START = 15.0
 """s a router process may take to import and listen (a loaded 2-core machine)."""
 
@@ -73,17 +72,7 @@ def router(processes: Processes) -> int:
 @pytest.fixture(
     params=[
         pytest.param("zenoh", id="zenoh"),
-        pytest.param(
-            "socketcan",
-            id="socketcan",
-            marks=[
-                pytest.mark.hil,
-                pytest.mark.skipif(
-                    not VCAN0.exists(),
-                    reason="no SocketCAN vcan0 here (see README: run -m hil in a VM)",
-                ),
-            ],
-        ),
+        pytest.param("socketcan", id="socketcan", marks=hil_marks()),
     ]
 )
 def transport(request: pytest.FixtureRequest) -> Transport:

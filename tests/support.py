@@ -6,6 +6,7 @@
   groups, output to files; whatever still runs at the end is killed.
 - :class:`Observer`: a bus of the test's own that records every frame it receives.
 - :func:`wait_until`: a bounded wait for a condition.
+- :func:`hil_marks`: the marks of a test on SocketCAN ``vcan0`` (the ``hil`` tier).
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -27,8 +28,24 @@ from pathlib import Path
 from typing import Any
 
 import can
+import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+VCAN0 = Path("/sys/class/net/vcan0")
+HIL_REQUIRED = os.environ.get("SCARA_HIL_REQUIRED") == "1"
+"""Set where the ``hil`` tier must run (``.ci/run`` in its VM): no vcan0 then fails the
+tests instead of skipping them, so a broken VM cannot pass as a green run."""
+
+
+def hil_marks() -> list[pytest.MarkDecorator]:
+    """The marks of a test that needs SocketCAN ``vcan0``: ``hil``, skipped where absent."""
+    return [
+        pytest.mark.hil,
+        pytest.mark.skipif(
+            not VCAN0.exists() and not HIL_REQUIRED,
+            reason="no SocketCAN vcan0 here (sudo tools/vcan-setup, or run in tools/vcan-vm)",
+        ),
+    ]
 
 
 def free_port() -> int:
