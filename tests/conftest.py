@@ -22,7 +22,7 @@ from typing import Any
 import can
 import pytest
 from hypothesis import settings
-from support import Observer, Processes, Transport, free_port, hil_marks, wait_until
+from support import SLOWDOWN, Observer, Processes, Transport, free_port, hil_marks, wait_until
 
 from protocol.zenoh_can.config import router_reachable
 
@@ -32,6 +32,19 @@ from protocol.zenoh_can.config import router_reachable
 settings.register_profile("local", deadline=None)
 settings.register_profile("ci", deadline=None, derandomize=True)
 settings.load_profile("ci" if os.environ.get("CI") else "local")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Stretch each test's time limit (pytest-timeout's) by SLOWDOWN."""
+    if SLOWDOWN == 1.0:
+        return
+    default = float(config.getini("timeout") or 0)
+    for item in items:
+        marker = item.get_closest_marker("timeout")
+        limit = float(marker.args[0]) if marker is not None and marker.args else default
+        if limit > 0:
+            item.add_marker(pytest.mark.timeout(limit * SLOWDOWN), append=False)
+
 
 ROUTER_START = 15.0
 """s a router process may take to import and listen (a loaded 2-core machine)."""

@@ -37,6 +37,27 @@ HIL_REQUIRED = os.environ.get("SCARA_HIL_REQUIRED") == "1"
 tests instead of skipping them, so a broken VM cannot pass as a green run."""
 
 
+SLOWDOWN = float(os.environ.get("SCARA_TEST_SLOWDOWN", "1"))
+"""How many times slower than an ordinary host this machine runs the processes: every bound
+on waiting (for a process, a frame, a condition, a test) is stretched by it. ``.ci/run`` sets
+it in the software-emulated VM, where python runs about 30 times slower; the bounds only ever
+decide how long a failure takes to show, never whether a test passes."""
+
+
+EMULATED = SLOWDOWN > 1.0
+"""The nodes run far slower than real time asks here (the software-emulated VM of
+``.ci/run``): real-time tests then run at 100 Hz, not the scenario's 500 Hz, and stretch their
+own time constants (stops, comms-loss timeouts, settling) by STRETCH, keeping their ratios."""
+STRETCH = 10.0 if EMULATED else 1.0
+RATE: tuple[str, ...] = ("--rate", "100") if EMULATED else ()
+"""The rate flags of a real-time node."""
+
+
+def comms_timeout(seconds: float) -> tuple[str, str]:
+    """The controller's comms-loss timeout flag for ``seconds`` (stretched)."""
+    return ("--comms-timeout", f"{seconds * STRETCH:g}")
+
+
 def hil_marks() -> list[pytest.MarkDecorator]:
     """The marks of a test that needs SocketCAN ``vcan0``: ``hil``, skipped where absent."""
     return [
@@ -71,7 +92,9 @@ def frame(frame_id: int, data: bytes) -> can.Message:
 
 
 def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
-    """Poll ``condition`` until it holds; fail naming ``what`` after ``timeout`` s."""
+    """Poll ``condition`` until it holds; fail naming ``what`` after ``timeout`` s (times
+    SLOWDOWN)."""
+    timeout *= SLOWDOWN
     deadline = time.monotonic() + timeout
     while not condition():
         if time.monotonic() > deadline:
@@ -124,7 +147,9 @@ class Process:
         return self.popen.poll()
 
     def wait(self, timeout: float) -> int:
-        """The exit code; fails the test (after killing it) if it runs past ``timeout``."""
+        """The exit code; fails the test (after killing it) if it runs past ``timeout``
+        (times SLOWDOWN)."""
+        timeout *= SLOWDOWN
         try:
             return self.popen.wait(timeout)
         except subprocess.TimeoutExpired:
@@ -134,11 +159,12 @@ class Process:
             ) from None
 
     def interrupt(self, grace: float = 5.0) -> int:
-        """SIGINT (a node's clean stop), SIGKILL if it has not exited after ``grace`` s."""
+        """SIGINT (a node's clean stop), SIGKILL if it has not exited after ``grace`` s
+        (times SLOWDOWN)."""
         if self.popen.poll() is None:
             self.popen.send_signal(signal.SIGINT)
             try:
-                self.popen.wait(grace)
+                self.popen.wait(grace * SLOWDOWN)
             except subprocess.TimeoutExpired:
                 with contextlib.suppress(ProcessLookupError):  # its threads' stacks, if a node
                     os.kill(self.popen.pid, signal.SIGUSR1)
@@ -227,8 +253,9 @@ class Observer:
     def wait_for(
         self, predicate: Callable[[can.Message], bool], timeout: float, start: int = 0
     ) -> can.Message | None:
-        """The first frame (from index ``start`` on) satisfying ``predicate``; None on timeout."""
-        deadline = time.monotonic() + timeout
+        """The first frame (from index ``start`` on) satisfying ``predicate``; None after
+        ``timeout`` s (times SLOWDOWN)."""
+        deadline = time.monotonic() + timeout * SLOWDOWN
         index = start
         with self._changed:
             while True:

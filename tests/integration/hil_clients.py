@@ -7,7 +7,7 @@ Linux host with SocketCAN, Debian's can-utils (``candump``, ``cansend``, ``canpl
 - :class:`Candump`: ``candump -L vcan0`` into a file, started once its socket is bound;
   :func:`read_capture` parses such a file, :func:`write_capture` writes one.
 - :func:`cantools_decode`: ``cantools decode`` of a capture with the project's DBC, parsed.
-- :func:`cansend`: frames through ``cansend``, from one shell.
+- :func:`cansend`: frames through ``cansend``, all at once.
 - :func:`background`: a tool (``cangen``) running while in use.
 """
 
@@ -19,7 +19,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,14 +119,21 @@ class Candump:
 
 
 def cansend(frames: Sequence[tuple[int, bytes]]) -> None:
-    """Put ``frames`` (standard IDs) on vcan0 with ``cansend``, in order, from one shell."""
+    """Put ``frames`` (standard IDs) on vcan0, one ``cansend`` each, all started at once: they
+    go out within about one process start, in no set order."""
     program = can_util("cansend")
-    script = "\n".join(
-        f"{program} {VCAN} {frame_id:03X}#{data.hex().upper()} || exit 1"
+    started = [
+        subprocess.Popen(
+            [program, VCAN, f"{frame_id:03X}#{data.hex().upper()}"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
         for frame_id, data in frames
-    )
-    done = subprocess.run(["sh", "-c", script], capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0, done.stderr
+    ]
+    for process in started:
+        _, errors = process.communicate(timeout=BIND_TIMEOUT)
+        assert process.returncode == 0, errors.decode(errors="replace")
 
 
 @contextlib.contextmanager
@@ -185,8 +191,3 @@ def cantools_decode(capture: Path) -> list[Decoded]:
             values[name] = float(value.split(" ", 1)[0])
         decoded.append(Decoded(int(frame_id, 16), message, values))
     return decoded
-
-
-def wait_quiet(seconds: float) -> None:
-    """Let the bus settle between one tool and the next."""
-    time.sleep(seconds)

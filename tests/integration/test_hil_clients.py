@@ -208,7 +208,7 @@ def test_bad_frames_from_cansend_are_counted_by_the_plant_and_none_is_acted_on(
     finally:
         controller.signal(signal.SIGCONT)
     # Judged against the controller's last counter, not as a sender starting over.
-    assert seen[1].timestamp - last.timestamp < RESYNC_AFTER, (last, seen)
+    assert max(m.timestamp for m in seen[:2]) - last.timestamp < RESYNC_AFTER, (last, seen)
     result = finish_clean(processes, controller, plant, out)
     plant_e2e = result["plant"]["e2e"]
     assert (plant_e2e["repeated"], plant_e2e["stale"], plant_e2e["corrupt"]) == (1, 1, 2)
