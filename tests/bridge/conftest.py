@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 import pytest
 import zenoh
 from robot_stack import COMMS, PASSWORDS, SECURE_CONFIG, Stack, open_client, start_router
-from support import RATE, Processes
+from support import Processes
 
 
 @pytest.fixture
@@ -32,10 +32,8 @@ def make_stack(processes: Processes) -> Callable[..., Stack]:
             password.write_text(PASSWORDS["bridge"])
             args += ["--user", "bridge", "--password-file", str(password)]
         stack = Stack(processes, can_port, zenoh_port, args, on_vcan)
-        stack.plant = processes.start("plant_sim.node", *stack.bus, *RATE, name="plant")
-        stack.controller = processes.start(
-            "controller.node", *stack.bus, *RATE, *COMMS, name="controller"
-        )
+        stack.plant = processes.start("plant_sim.node", *stack.bus, name="plant")
+        stack.controller = processes.start("controller.node", *stack.bus, *COMMS, name="controller")
         stack.start_bridge()
         return stack
 

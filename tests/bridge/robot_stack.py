@@ -16,14 +16,14 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from support import Process, Processes, comms_timeout, free_port, wait_until
+from support import Process, Processes, free_port, wait_until
 
 from protocol.zenoh_can.config import router_reachable
 
 ROBOT = "arm1"
 START = 30.0
 """s the stack may take to come up on a loaded 2-core machine (imports, joins)."""
-COMMS = comms_timeout(0.5)
+COMMS = ("--comms-timeout", "0.5")
 """The controller's comms-loss timeout in these tests: 0.5 s, so that a stall of the machine
 holds the arm instead of latching a fault (the 0.1 s default is the co-simulation tests')."""
 REPO = Path(__file__).resolve().parents[2]

@@ -46,7 +46,7 @@ from hil_clients import (
     cantools_decode,
     write_capture,
 )
-from support import Observer, Processes, Transport, hil_marks
+from support import EMULATED, Observer, Processes, Transport, hil_marks
 
 from protocol.e2e import RESYNC_AFTER
 from protocol.messages import COMMAND, PLANT_STATUS, STATE_IDS, STEP, on_the_wire_command
@@ -59,6 +59,9 @@ pytestmark = hil_marks()
 VCAN = Transport("socketcan", "vcan0")
 HEARD = 60.0
 """s a node may take to start and be heard on the bus (an emulated VM imports slowly)."""
+FLOOD_GAP_MS = 0.2
+"""ms between the frames of each cangen flood: 5000 frames/s each, two floods (in the emulated
+VM, where python runs some 30 times slower, a tenth of that)."""
 FOREIGN_ID = 0x7E8
 """A standard ID the DBC does not define (an OBD-II answer: another system's traffic)."""
 
@@ -244,8 +247,9 @@ def test_a_flood_of_unrelated_frames_from_cangen_leaves_a_lockstep_run_unchanged
 ) -> None:
     cangen = can_util("cangen")
     out = tmp_path / "run"
-    standard = [cangen, "vcan0", "-g", "0.2", "-I", f"{FOREIGN_ID:X}", "-L", "8", "-D", "r"]
-    extended = [cangen, "vcan0", "-g", "0.2", "-e"]
+    gap = f"{FLOOD_GAP_MS * (10 if EMULATED else 1):g}"
+    standard = [cangen, "vcan0", "-g", gap, "-I", f"{FOREIGN_ID:X}", "-L", "8", "-D", "r"]
+    extended = [cangen, "vcan0", "-g", gap, "-e"]
     with background(standard) as first, background(extended) as second:
         time.sleep(1.0)
         assert first.poll() is None and second.poll() is None
