@@ -113,22 +113,32 @@ def test_cantools_decodes_every_captured_frame_and_the_commands_are_those_logged
         assert rates == pytest.approx(expected, abs=1e-12), tick
 
 
-def test_the_recording_holds_the_frames_candump_saw(captured_run: CapturedRun) -> None:
-    """The recorder on vcan0 missed nothing: from its first frame to its last, the same
-    frames as candump's, in the same order, with the same kernel receive times."""
+def test_the_recording_holds_the_frames_candump_saw_over_its_span(
+    captured_run: CapturedRun,
+) -> None:
+    """The recorder on vcan0 missed nothing and added nothing: from its first frame to its
+    last, the same frames as candump's, each with the same kernel receive time. (Frames of
+    two senders that arrive together may reach two sockets in either order: each socket is
+    fed by the CPU that sent the frame, so the order is not compared across senders.)"""
     with MCAPReader(captured_run.out / "run.mcap") as reader:
         recorded = list(reader)
-    captured = captured_run.frames
-    first = next(
-        index for index, frame in enumerate(captured)
-        if (frame.frame_id, frame.data) == (recorded[0].arbitration_id, bytes(recorded[0].data))
-        and abs(frame.timestamp - recorded[0].timestamp) < 1e-5
-    )  # fmt: skip
-    window = captured[first : first + len(recorded)]
-    assert [(f.frame_id, f.data) for f in window] == [
-        (m.arbitration_id, bytes(m.data)) for m in recorded
-    ]
-    assert max(abs(f.timestamp - m.timestamp) for f, m in zip(window, recorded, strict=True)) < 1e-5
+    start, end = recorded[0].timestamp - 1e-5, recorded[-1].timestamp + 1e-5
+    window = [f for f in captured_run.frames if start <= f.timestamp <= end]
+
+    def by_frame(pairs: list[tuple[int, bytes, float]]) -> dict[tuple[int, bytes], list[float]]:
+        times: dict[tuple[int, bytes], list[float]] = {}
+        for frame_id, data, stamp in pairs:
+            times.setdefault((frame_id, data), []).append(stamp)
+        return times
+
+    seen = by_frame([(f.frame_id, f.data, f.timestamp) for f in window])
+    kept = by_frame([(m.arbitration_id, bytes(m.data), m.timestamp) for m in recorded])
+    assert len(recorded) == len(window)
+    assert seen.keys() == kept.keys()
+    for key, stamps in seen.items():
+        assert len(kept[key]) == len(stamps), key
+        gaps = [abs(a - b) for a, b in zip(sorted(stamps), sorted(kept[key]), strict=True)]
+        assert max(gaps) < 1e-5, (key, max(gaps))
 
 
 def test_canplayer_replays_the_controller_side_into_a_plant_that_moves_as_in_the_run(
