@@ -74,7 +74,12 @@ COMMS_TIMEOUT = 0.1
 LATE_TOLERANCE = 0.25
 """A tick starting later than this fraction of the period counts as a missed deadline."""
 LOCKSTEP_RETRY = 0.005
-"""s the controller waits for the plant's answer in lockstep before sending again."""
+"""s the controller waits at least for the plant's answer in lockstep before sending again:
+the first wait for a tick is the longer of this and twice the usual round trip, and each
+further wait for the same tick twice as long, up to LOCKSTEP_RETRY_MAX (a slow host is not
+flooded with retries, and a lossy bus still gets many tries before LOCKSTEP_GIVE_UP)."""
+LOCKSTEP_RETRY_MAX = 0.1
+"""s: the longest wait between two sends of the same lockstep tick."""
 LOCKSTEP_GIVE_UP = 1.0
 """s without any answer in lockstep before the controller faults (the plant is gone)."""
 ZERO: Joints = (0.0, 0.0, 0.0)
@@ -180,6 +185,8 @@ class ControllerNode(Node):
         self._awaiting: dict[int, float] = {}  # command counter -> wall time it was sent
         self._parts = JointStateParts()
         self.state: JointState | None = None
+        self._round_trip = LOCKSTEP_RETRY / 2.0
+        """s from a lockstep command to its answer, smoothed (the first retry waits twice)."""
         self.ticks_to_run = self.tick = self.slot = 0  # no run prepared yet
         self._next_waypoint = self._approach = 0
         self._last_output: ControlOutput | None = None
@@ -453,19 +460,25 @@ class ControllerNode(Node):
 
     def _exchange(self, tick: int, rates: Joints | None, give_up: float) -> JointState | None:
         """Send the command ``rates`` and a StepSync(tick) naming it, together, and wait for
-        the joint state answering it; every LOCKSTEP_RETRY without one, send both again (the
-        same values under new counters), until ``give_up``. ``rates`` None: StepSync alone,
-        which the plant answers without stepping (the start).
+        the joint state answering it; after LOCKSTEP_RETRY without one, send both again (the
+        same values under new counters), each wait longer (see LOCKSTEP_RETRY), until ``give_up``.
+        ``rates`` None: StepSync alone, which the plant answers without stepping (the start).
 
-        Only an answer echoing the latest command is taken: the plant steps only under a
-        command it received since its last step, and echoes the last command it received.
+        An answer echoing any of the commands sent for this tick is taken: they all carry the
+        same rates, and the plant steps once per tick whichever of them it stepped under.
+        Waiting only for the latest would never end on a host whose round trip is longer
+        than the wait: each answer would arrive just after the next retry made it old.
         """
         self.state = None
+        sent: set[int] = set()
+        wait = min(max(LOCKSTEP_RETRY, 2.0 * self._round_trip), LOCKSTEP_RETRY_MAX)
+        first_sent = self.clock()
         while self.running:
             frames = []
             command = 0
             if rates is not None:
                 command = self.next_counter(COMMAND)
+                sent.add(command)
                 frames.append((COMMAND, command_record(rates), command))
             step = STEP.Record(CommandCounter=command, Tick=tick)
             frames.append((STEP, step, self.next_counter(STEP)))
@@ -476,12 +489,16 @@ class ControllerNode(Node):
                 self.enter_fault(ControllerFault.ENCODE)
                 return None
             self.send_status_if_due(self.clock())
-            resend = min(give_up, self.clock() + LOCKSTEP_RETRY)
-            while self.clock() < resend:
+            resend = min(give_up, self.clock() + wait)
+            wait = min(2.0 * wait, LOCKSTEP_RETRY_MAX)
+            while True:  # read what came at least once, even after a stall of this process
                 self.drain(timeout=max(0.0, resend - self.clock()))
                 state = self.state
-                if state is not None and (rates is None or state.echo == command):
+                if state is not None and (rates is None or state.echo in sent):
+                    self._round_trip += 0.1 * (self.clock() - first_sent - self._round_trip)
                     return state
+                if self.clock() >= resend:
+                    break
             if self.clock() >= give_up:
                 return None
             if rates is not None:

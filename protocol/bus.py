@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import socket
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -87,6 +88,28 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
 def open_bus(interface: str | None, channel: str | None, options: dict[str, Any]) -> can.BusABC:
     resolved_interface, resolved_channel = resolve_transport(interface, channel)
     return can.Bus(interface=resolved_interface, channel=resolved_channel, **options)
+
+
+RECEIVE_BUFFER = 8 * 1024 * 1024
+"""bytes a listener that must miss nothing asks the kernel to queue for its SocketCAN socket
+(the default, about 200 kB, holds a few hundred frames: a listener not scheduled for a
+while loses the rest silently)."""
+
+
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+"""Linux's SO_RCVBUFFORCE (Python names it from 3.12 on)."""
+
+
+def enlarge_receive_buffer(bus: can.BusABC, size: int = RECEIVE_BUFFER) -> None:
+    """Ask for a ``size`` receive queue where the bus is a SocketCAN socket (SO_RCVBUFFORCE
+    where allowed, else SO_RCVBUF up to the system's limit); other buses queue in process."""
+    raw = getattr(bus, "socket", None)
+    if not isinstance(raw, socket.socket) or raw.family != socket.AF_CAN:
+        return
+    try:
+        raw.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, size)
+    except OSError:  # no CAP_NET_ADMIN
+        raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
 
 
 def open_bus_from_args(args: argparse.Namespace) -> can.BusABC:

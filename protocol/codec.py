@@ -298,6 +298,10 @@ class Wire:
             else:
                 self.messages[message.name] = MessageCodec(message, schedule)
         self.by_id = {codec.frame_id: codec for codec in self.messages.values()}
+        self.defined_ids = frozenset(
+            [*self.by_id, *(carrier.frame_id for carrier in self.isotp.values())]
+        )
+        """Every frame ID the DBC defines; any other ID on the bus is foreign."""
 
     def __getitem__(self, name: str) -> MessageCodec:
         return self.messages[name]

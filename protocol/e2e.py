@@ -46,10 +46,12 @@ class E2ECounts:
     repeated: int = 0
     stale: int = 0
     corrupt: int = 0
+    unknown: int = 0
+    """Frames with an ID the DBC does not define (another system's traffic, or a fault)."""
 
     @property
     def bad(self) -> int:
-        """Frames received but not acted on."""
+        """Frames of this node's IDs received but not acted on."""
         return self.repeated + self.stale + self.corrupt
 
 
@@ -105,12 +107,15 @@ class E2EMonitor:
         otherwise.
 
         Frames this node does not listen to (other IDs, extended, remote, error frames) are
-        passed over; ones that fail to decode are counted as corrupt; ones whose counter is
-        not usable are counted by :meth:`check`.
+        passed over, those with an ID the DBC does not define counted as unknown; ones that
+        fail to decode are counted as corrupt; ones whose counter is not usable are counted
+        by :meth:`check`.
         """
-        if message.is_error_frame or message.is_remote_frame or message.is_extended_id:
+        if message.is_error_frame or message.is_remote_frame:
             return None
-        if message.arbitration_id not in wanted:
+        if message.arbitration_id not in wanted or message.is_extended_id:
+            if message.is_extended_id or message.arbitration_id not in WIRE.defined_ids:
+                self.counts.unknown += 1
             return None
         try:
             codec, counter, record = WIRE.decode(message.arbitration_id, message.data)

@@ -42,6 +42,12 @@ from protocol.messages import NODE_COMMAND, STOP, Counter, NodeId, NodeState, Re
 from protocol.realtime import settle_memory, tune_process
 from protocol.scenario import Scenario
 
+DRAIN_LIMIT = 256
+"""Frames one :meth:`Node.drain` handles at most (a few ms of reading): on a bus that never ran
+dry (other systems' frames coming faster than a node reads them) the controller read for ever
+instead of taking the lockstep answer it had already read. Its callers loop; what is left
+waits in the socket's queue."""
+
 
 class ClockMode(Enum):
     REALTIME = "realtime"
@@ -81,10 +87,16 @@ class Node:
     # --- frames in ----------------------------------------------------------------------
 
     def drain(self, timeout: float = 0.0) -> None:
-        """Handle every frame waiting on the bus (waiting up to ``timeout`` for the first)."""
+        """Handle the frames waiting on the bus (waiting up to ``timeout`` for the first), at
+        most DRAIN_LIMIT of them: on a bus busier than this process can read, it would
+        otherwise read for ever and never get back to its own work."""
         message = self.bus.recv(timeout=timeout)
+        handled = 0
         while message is not None:
             self.handle(message)
+            handled += 1
+            if handled == DRAIN_LIMIT:
+                return
             message = self.bus.recv(timeout=0.0)
 
     def handle(self, message: can.Message) -> None:

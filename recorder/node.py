@@ -34,7 +34,7 @@ from mcap.writer import Writer
 
 from bridge.view import VIEWED, RobotView
 from controller.planner import load_planned
-from protocol.bus import add_bus_arguments, open_bus_from_args
+from protocol.bus import add_bus_arguments, enlarge_receive_buffer, open_bus_from_args
 from protocol.cli import add_verbosity, configure_logging, number
 from protocol.codec import DBC_TEXT, alive_counter
 from protocol.e2e import E2EMonitor
@@ -294,6 +294,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         scenario = load_planned(args.scenario) if args.scenario else None
         bus = open_bus_from_args(args)
+        enlarge_receive_buffer(bus)
     except (ScaraError, can.CanError, ValueError, OSError) as error:
         print(f"scara-record: {error}", file=sys.stderr)
         return 2

@@ -123,7 +123,7 @@ def format_report(report: RunReport) -> str:
 def _received(label: str, e2e: dict[str, int]) -> str:
     return (
         f"{label}: {e2e['ok']} ok, {e2e['lost']} lost, {e2e['repeated']} repeated, "
-        f"{e2e['stale']} stale, {e2e['corrupt']} corrupt"
+        f"{e2e['stale']} stale, {e2e['corrupt']} corrupt, {e2e.get('unknown', 0)} unknown ID"
     )
 
 

@@ -22,7 +22,7 @@ from typing import Any
 import can
 import pytest
 from hypothesis import settings
-from support import Observer, Processes, Transport, free_port, wait_until
+from support import SLOWDOWN, Observer, Processes, Transport, free_port, hil_marks, wait_until
 
 from protocol.zenoh_can.config import router_reachable
 
@@ -33,7 +33,19 @@ settings.register_profile("local", deadline=None)
 settings.register_profile("ci", deadline=None, derandomize=True)
 settings.load_profile("ci" if os.environ.get("CI") else "local")
 
-VCAN0 = Path("/sys/class/net/vcan0")
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Stretch each test's time limit (pytest-timeout's) by SLOWDOWN."""
+    if SLOWDOWN == 1.0:
+        return
+    default = float(config.getini("timeout") or 0)
+    for item in items:
+        marker = item.get_closest_marker("timeout")
+        limit = float(marker.args[0]) if marker is not None and marker.args else default
+        if limit > 0:
+            item.add_marker(pytest.mark.timeout(limit * SLOWDOWN), append=False)
+
+
 ROUTER_START = 15.0
 """s a router process may take to import and listen (a loaded 2-core machine)."""
 
@@ -73,17 +85,7 @@ def router(processes: Processes) -> int:
 @pytest.fixture(
     params=[
         pytest.param("zenoh", id="zenoh"),
-        pytest.param(
-            "socketcan",
-            id="socketcan",
-            marks=[
-                pytest.mark.hil,
-                pytest.mark.skipif(
-                    not VCAN0.exists(),
-                    reason="no SocketCAN vcan0 here (see README: run -m hil in a VM)",
-                ),
-            ],
-        ),
+        pytest.param("socketcan", id="socketcan", marks=hil_marks()),
     ]
 )
 def transport(request: pytest.FixtureRequest) -> Transport:

@@ -6,6 +6,7 @@
   groups, output to files; whatever still runs at the end is killed.
 - :class:`Observer`: a bus of the test's own that records every frame it receives.
 - :func:`wait_until`: a bounded wait for a condition.
+- :func:`hil_marks`: the marks of a test on SocketCAN ``vcan0`` (the ``hil`` tier).
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -27,8 +28,46 @@ from pathlib import Path
 from typing import Any
 
 import can
+import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+VCAN0 = Path("/sys/class/net/vcan0")
+HIL_REQUIRED = os.environ.get("SCARA_HIL_REQUIRED") == "1"
+"""Set where the ``hil`` tier must run (``.ci/run`` in its VM): no vcan0 then fails the
+tests instead of skipping them, so a broken VM cannot pass as a green run."""
+
+
+SLOWDOWN = float(os.environ.get("SCARA_TEST_SLOWDOWN", "1"))
+"""How many times slower than an ordinary host this machine runs the processes: every bound
+on waiting (for a process, a frame, a condition, a test) is stretched by it. ``.ci/run`` sets
+it in the software-emulated VM, where python runs about 30 times slower; the bounds only ever
+decide how long a failure takes to show, never whether a test passes."""
+
+
+EMULATED = SLOWDOWN > 1.0
+"""The nodes run far slower than real time asks here (the software-emulated VM of
+``.ci/run``)."""
+
+
+def real_time_needed() -> None:
+    """Skip a test that closes a real-time loop where the nodes cannot keep time."""
+    if EMULATED:
+        pytest.skip(
+            "closes a real-time loop: the software-emulated VM cannot (measured there at 100 Hz: "
+            "command-to-state round trip p50 265 ms, the arm driven into a joint limit); runs "
+            "on a host with vcan0 (docs/hil.md)"
+        )
+
+
+def hil_marks() -> list[pytest.MarkDecorator]:
+    """The marks of a test that needs SocketCAN ``vcan0``: ``hil``, skipped where absent."""
+    return [
+        pytest.mark.hil,
+        pytest.mark.skipif(
+            not VCAN0.exists() and not HIL_REQUIRED,
+            reason="no SocketCAN vcan0 here (sudo tools/vcan-setup, or run in tools/vcan-vm)",
+        ),
+    ]
 
 
 def free_port() -> int:
@@ -54,7 +93,9 @@ def frame(frame_id: int, data: bytes) -> can.Message:
 
 
 def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None:
-    """Poll ``condition`` until it holds; fail naming ``what`` after ``timeout`` s."""
+    """Poll ``condition`` until it holds; fail naming ``what`` after ``timeout`` s (times
+    SLOWDOWN)."""
+    timeout *= SLOWDOWN
     deadline = time.monotonic() + timeout
     while not condition():
         if time.monotonic() > deadline:
@@ -107,7 +148,9 @@ class Process:
         return self.popen.poll()
 
     def wait(self, timeout: float) -> int:
-        """The exit code; fails the test (after killing it) if it runs past ``timeout``."""
+        """The exit code; fails the test (after killing it) if it runs past ``timeout``
+        (times SLOWDOWN)."""
+        timeout *= SLOWDOWN
         try:
             return self.popen.wait(timeout)
         except subprocess.TimeoutExpired:
@@ -117,11 +160,12 @@ class Process:
             ) from None
 
     def interrupt(self, grace: float = 5.0) -> int:
-        """SIGINT (a node's clean stop), SIGKILL if it has not exited after ``grace`` s."""
+        """SIGINT (a node's clean stop), SIGKILL if it has not exited after ``grace`` s
+        (times SLOWDOWN)."""
         if self.popen.poll() is None:
             self.popen.send_signal(signal.SIGINT)
             try:
-                self.popen.wait(grace)
+                self.popen.wait(grace * SLOWDOWN)
             except subprocess.TimeoutExpired:
                 with contextlib.suppress(ProcessLookupError):  # its threads' stacks, if a node
                     os.kill(self.popen.pid, signal.SIGUSR1)
@@ -210,8 +254,9 @@ class Observer:
     def wait_for(
         self, predicate: Callable[[can.Message], bool], timeout: float, start: int = 0
     ) -> can.Message | None:
-        """The first frame (from index ``start`` on) satisfying ``predicate``; None on timeout."""
-        deadline = time.monotonic() + timeout
+        """The first frame (from index ``start`` on) satisfying ``predicate``; None after
+        ``timeout`` s (times SLOWDOWN)."""
+        deadline = time.monotonic() + timeout * SLOWDOWN
         index = start
         with self._changed:
             while True:

@@ -1,7 +1,7 @@
 """Fixtures of the bridge's tests (the helpers they use are in ``robot_stack``).
 
-- ``make_stack(*bridge_args, secure=False)`` / ``stack``: router(s), plant, controller
-  (service mode) and bridge as real processes, started.
+- ``make_stack(*bridge_args, secure=False, on_vcan=False)`` / ``stack``: router(s), plant,
+  controller (service mode) and bridge as real processes, started.
 - ``client(port, user=None, password=None)``: a plain Zenoh client session, closed after.
 """
 
@@ -17,9 +17,10 @@ from support import Processes
 
 @pytest.fixture
 def make_stack(processes: Processes) -> Callable[..., Stack]:
-    """``make_stack(secure=False, *bridge_args)``: the stack on its own routers, started."""
+    """``make_stack(*bridge_args, secure=False, on_vcan=False)``: the stack on its own
+    routers (on vcan0: the nodes' frames go there), started."""
 
-    def make(*bridge_args: str, secure: bool = False) -> Stack:
+    def make(*bridge_args: str, secure: bool = False, on_vcan: bool = False) -> Stack:
         can_port = start_router(processes, name="can-router")
         zenoh_port = can_port
         args = list(bridge_args)
@@ -30,7 +31,7 @@ def make_stack(processes: Processes) -> Callable[..., Stack]:
             password = processes.folder / "bridge.password"
             password.write_text(PASSWORDS["bridge"])
             args += ["--user", "bridge", "--password-file", str(password)]
-        stack = Stack(processes, can_port, zenoh_port, args)
+        stack = Stack(processes, can_port, zenoh_port, args, on_vcan)
         stack.plant = processes.start("plant_sim.node", *stack.bus, name="plant")
         stack.controller = processes.start("controller.node", *stack.bus, *COMMS, name="controller")
         stack.start_bridge()

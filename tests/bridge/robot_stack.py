@@ -1,5 +1,6 @@
 """The robot as a service for the bridge's tests: router, plant, controller (service mode)
-and bridge as real processes on CAN-over-Zenoh through the test's router on 127.0.0.1.
+and bridge as real processes on CAN-over-Zenoh through the test's router on 127.0.0.1 (or
+on SocketCAN vcan0, the router then carrying only the bridge's keys).
 
 - :class:`Stack` holds them; :func:`start_router` starts a router and waits for it.
 - :func:`open_client` opens a plain Zenoh client session written here from Zenoh's own
@@ -75,12 +76,16 @@ class Stack:
     zenoh_port: int
     """The port where the robot's keys live (the CAN router's, or the secure router's)."""
     bridge_args: list[str]
+    on_vcan: bool = False
+    """The nodes and the bridge on SocketCAN vcan0 (the ``hil`` tier), not on CAN over Zenoh."""
     plant: Process | None = None
     controller: Process | None = None
     bridge: Process | None = None
 
     @property
     def bus(self) -> list[str]:
+        if self.on_vcan:
+            return ["--interface", "socketcan", "--channel", "vcan0"]
         return [
             "--interface", "zenoh", "--channel", f"robot{self.can_port}",
             "--bus-option", f"port={self.can_port}",

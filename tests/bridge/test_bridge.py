@@ -18,7 +18,7 @@ import jsonschema
 import pytest
 import zenoh
 from robot_stack import PASSWORDS, ROBOT, Stack, command, latest, open_client
-from support import wait_until
+from support import hil_marks, real_time_needed, wait_until
 
 SCHEMAS = Path(__file__).resolve().parents[2] / "protocol" / "schemas"
 STATE_KEYS = ("joints", "tcp", "coordination", "status", "events", "scenario")
@@ -149,10 +149,16 @@ def test_every_key_arrives_at_its_rate_and_fits_its_schema_and_a_late_joiner_see
     assert alive == {f"scara/{ROBOT}/alive/{p}" for p in ("bridge", "controller", "plant")}
 
 
+@pytest.mark.parametrize(
+    "on_vcan",
+    [pytest.param(False, id="zenoh"), pytest.param(True, id="vcan0", marks=hil_marks())],
+)
 def test_an_authorised_operator_runs_the_arm_around_the_obstacle_and_others_cannot(
-    make_stack: Any, client: Any
+    make_stack: Any, client: Any, on_vcan: bool
 ) -> None:
-    stack = make_stack(secure=True)
+    if on_vcan:
+        real_time_needed()  # the controller service runs in real time
+    stack = make_stack(secure=True, on_vcan=on_vcan)
     operator = client(stack.zenoh_port, "operator", PASSWORDS["operator"])
     recorder = Recorder(operator)
     stack.wait_ready(operator)

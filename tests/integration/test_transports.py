@@ -1,6 +1,7 @@
 """Lockstep over transports other than Zenoh gives the in-process simulation's results too.
 
-- ``virtual``: python-can's in-process bus, plant and controller in two threads;
+- ``virtual``: python-can's in-process bus, plant and controller in two threads (also with
+  the controller's side flooded by other systems' frames);
 - ``udp_multicast``: two real processes inside a network namespace made for the test, whose
   loopback carries the multicast group (never on the host's network: ``docs/design.md``).
 """
@@ -12,12 +13,13 @@ import shutil
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import can
 import numpy as np
 import pytest
-from support import ROOT
+from support import ROOT, frame
 
 from controller.node import ControllerNode
 from plant_sim.node import PlantNode
@@ -27,6 +29,8 @@ from sim.measures import compute_measures
 from sim.report import read_run
 from sim.simulation import simulate
 
+FOREIGN_ID = 0x7E8
+"""A standard ID the DBC does not define (an OBD-II answer)."""
 NAMESPACE_SETUP = (
     "ip link set lo up && ip link set lo multicast on && ip route add 239.0.0.0/8 dev lo"
 )
@@ -51,6 +55,49 @@ def test_lockstep_over_the_virtual_bus_is_bit_identical_to_the_simulation() -> N
     assert controller.finished
     assert np.array_equal(controller.log_rows.data, expected.log.data)
     assert compute_measures(scenario, controller.log_rows) == expected.measures
+
+
+class Flooded(can.BusABC):
+    """A bus busier than its reader: whenever nothing of the run is waiting, a frame of an ID
+    the DBC does not define is (another system's traffic, without end)."""
+
+    def __init__(self, inner: can.BusABC) -> None:
+        super().__init__(channel=None)
+        self.inner = inner
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.inner.send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message, bool]:
+        message = self.inner.recv(timeout=0.0)
+        if message is None:
+            time.sleep(0)  # the plant's thread gets the interpreter now and then, as on a bus
+        return message or frame(FOREIGN_ID, bytes(8)), False
+
+
+def test_lockstep_under_a_flood_that_never_runs_dry_is_bit_identical(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A node drains at most DRAIN_LIMIT frames before it looks at its own work: reading
+    until the bus is quiet, the controller never took the answer it had read."""
+    monkeypatch.setattr("protocol.node.DRAIN_LIMIT", 8)  # the test's own time, not the bound
+    scenario = load_scenario("reference").with_mode(Mode.CONVENTIONAL)
+    plant_bus = can.Bus(interface="virtual", channel="lockstep-flooded")
+    controller_bus = can.Bus(interface="virtual", channel="lockstep-flooded")
+    plant = PlantNode(plant_bus, scenario, ClockMode.LOCKSTEP)
+    server = threading.Thread(target=plant.run, daemon=True)
+    server.start()
+    try:
+        controller = ControllerNode(Flooded(controller_bus), scenario, ClockMode.LOCKSTEP)
+        controller.run_lockstep(startup_timeout=10.0)
+    finally:
+        plant.stop()
+        server.join(timeout=5.0)
+        plant_bus.shutdown()
+        controller_bus.shutdown()
+    assert controller.finished
+    assert np.array_equal(controller.log_rows.data, simulate(scenario).log.data)
+    assert controller.monitor.counts.unknown >= controller.tick
 
 
 def _can_make_namespace() -> bool:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import can
+
+from protocol.codec import WIRE
 from protocol.e2e import RESYNC_AFTER, Check, E2EMonitor
 
 
@@ -42,3 +45,29 @@ def test_a_sender_silent_for_longer_than_any_frame_is_late_starts_over() -> None
     assert monitor.check(0x40, 0, restarted) is Check.FIRST
     assert monitor.check(0x40, 0, restarted + 0.01) is Check.REPEATED
     assert monitor.check(0x40, 1, restarted + 0.02) is Check.OK
+
+
+def test_frames_of_ids_the_dbc_does_not_define_are_counted_as_unknown_and_passed_over() -> None:
+    """Another system's traffic (cangen, a foreign ECU) is never acted on; it is counted,
+    apart from the frames of this node's own IDs that were bad."""
+    monitor = E2EMonitor()
+    command = WIRE["JointVelocityCommand"]
+    data = command.encode(
+        command.Record(Enable=1, Theta1Rate=0.1, Theta2Rate=0.0, D3Rate=0.0), counter=1
+    )
+    wanted = {command.frame_id}
+    foreign = [
+        can.Message(arbitration_id=0x7FF, data=data, is_extended_id=False),
+        can.Message(arbitration_id=command.frame_id, data=data, is_extended_id=True),
+    ]
+    another_nodes = can.Message(
+        arbitration_id=WIRE["PlantStatus"].frame_id, data=bytes(8), is_extended_id=False
+    )
+    for message in (*foreign, another_nodes):
+        assert monitor.accept(message, wanted) is None
+    assert monitor.counts.unknown == len(foreign)
+    assert monitor.counts.bad == 0
+    ours = can.Message(arbitration_id=command.frame_id, data=data, is_extended_id=False)
+    accepted = monitor.accept(ours, wanted)
+    assert accepted is not None and accepted[1] == 1
+    assert 0x7FF not in WIRE.defined_ids and command.frame_id in WIRE.defined_ids
