@@ -47,6 +47,7 @@ from protocol.cli import add_verbosity, configure_logging, number
 from protocol.errors import ScaraError
 from protocol.keys import (
     COMMANDS,
+    EVERY_SAMPLE_KEYS,
     STATE_KEYS,
     alive_key,
     check_robot,
@@ -106,7 +107,9 @@ class Bridge:
         self._publishers = {
             name: session.declare_publisher(
                 state_key(robot, name),
-                congestion_control=zenoh.CongestionControl.DROP,
+                congestion_control=zenoh.CongestionControl.BLOCK
+                if name in EVERY_SAMPLE_KEYS
+                else zenoh.CongestionControl.DROP,
                 express=True,
             )
             for name in STATE_KEYS

@@ -18,6 +18,10 @@ from importlib import resources
 from typing import Any, Final
 
 STATE_KEYS: Final = ("joints", "tcp", "coordination", "status", "events", "scenario")
+EVERY_SAMPLE_KEYS: Final = ("events", "scenario")
+"""State keys whose every sample a subscriber that keeps up gets (Zenoh congestion control
+BLOCK): what happens once. The others are telemetry at a rate, sent with DROP: a link that
+stalls loses samples, which ``seq`` shows, rather than hold the publisher up."""
 COMMANDS: Final = ("waypoints", "obstacle", "mode", "run", "reset", "stop", "estop")
 PROCESSES: Final = ("bridge", "controller", "plant")
 DEFAULT_ROBOT: Final = "arm1"

@@ -20,6 +20,8 @@ import zenoh
 from robot_stack import PASSWORDS, ROBOT, Stack, command, latest, open_client
 from support import hil_marks, real_time_needed, wait_until
 
+from protocol.keys import EVERY_SAMPLE_KEYS
+
 SCHEMAS = Path(__file__).resolve().parents[2] / "protocol" / "schemas"
 STATE_KEYS = ("joints", "tcp", "coordination", "status", "events", "scenario")
 RUN_TIME = 40.0
@@ -120,9 +122,13 @@ def test_every_key_arrives_at_its_rate_and_fits_its_schema_and_a_late_joiner_see
         validator = jsonschema.Draft202012Validator(load_schema(name))
         for _, payload in samples:
             validator.validate(payload)
-        if name != "scenario":
-            sequence = [payload["seq"] for _, payload in samples]
+        if name == "scenario":  # carries no seq
+            continue
+        sequence = [payload["seq"] for _, payload in samples]
+        if name in EVERY_SAMPLE_KEYS:
             assert sequence == list(range(sequence[0], sequence[0] + len(sequence))), name
+        else:  # telemetry: in order and none twice; a link that stalls may lose some
+            assert sequence == sorted(set(sequence)), name
     started = recorder.event("run_started")
     finished = recorder.event("run_finished")
     assert started is not None and finished is not None
