@@ -14,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -24,7 +25,7 @@ from support import ROOT, frame
 from controller.node import ControllerNode
 from plant_sim.node import PlantNode
 from protocol.node import ClockMode
-from protocol.scenario import Mode, load_scenario
+from protocol.scenario import Mode, Scenario, load_scenario
 from sim.measures import compute_measures
 from sim.report import read_run
 from sim.simulation import simulate
@@ -36,21 +37,32 @@ NAMESPACE_SETUP = (
 )
 
 
-def test_lockstep_over_the_virtual_bus_is_bit_identical_to_the_simulation() -> None:
-    scenario = load_scenario("reference").with_mode(Mode.CONVENTIONAL)
-    plant_bus = can.Bus(interface="virtual", channel="lockstep-virtual")
-    controller_bus = can.Bus(interface="virtual", channel="lockstep-virtual")
+def lockstep_on_virtual(
+    scenario: Scenario,
+    channel: str,
+    controller_side: Callable[[can.BusABC], can.BusABC] = lambda bus: bus,
+) -> ControllerNode:
+    """A lockstep run on a ``virtual`` channel, the plant in a thread; ``controller_side``
+    may wrap the controller's bus."""
+    plant_bus = can.Bus(interface="virtual", channel=channel)
+    controller_bus = can.Bus(interface="virtual", channel=channel)
     plant = PlantNode(plant_bus, scenario, ClockMode.LOCKSTEP)
     server = threading.Thread(target=plant.run, daemon=True)
     server.start()
     try:
-        controller = ControllerNode(controller_bus, scenario, ClockMode.LOCKSTEP)
+        controller = ControllerNode(controller_side(controller_bus), scenario, ClockMode.LOCKSTEP)
         controller.run_lockstep(startup_timeout=10.0)
     finally:
         plant.stop()
         server.join(timeout=5.0)
         plant_bus.shutdown()
         controller_bus.shutdown()
+    return controller
+
+
+def test_lockstep_over_the_virtual_bus_is_bit_identical_to_the_simulation() -> None:
+    scenario = load_scenario("reference").with_mode(Mode.CONVENTIONAL)
+    controller = lockstep_on_virtual(scenario, "lockstep-virtual")
     expected = simulate(scenario)
     assert controller.finished
     assert np.array_equal(controller.log_rows.data, expected.log.data)
@@ -82,19 +94,7 @@ def test_lockstep_under_a_flood_that_never_runs_dry_is_bit_identical(
     until the bus is quiet, the controller never took the answer it had read."""
     monkeypatch.setattr("protocol.node.DRAIN_LIMIT", 8)  # the test's own time, not the bound
     scenario = load_scenario("reference").with_mode(Mode.CONVENTIONAL)
-    plant_bus = can.Bus(interface="virtual", channel="lockstep-flooded")
-    controller_bus = can.Bus(interface="virtual", channel="lockstep-flooded")
-    plant = PlantNode(plant_bus, scenario, ClockMode.LOCKSTEP)
-    server = threading.Thread(target=plant.run, daemon=True)
-    server.start()
-    try:
-        controller = ControllerNode(Flooded(controller_bus), scenario, ClockMode.LOCKSTEP)
-        controller.run_lockstep(startup_timeout=10.0)
-    finally:
-        plant.stop()
-        server.join(timeout=5.0)
-        plant_bus.shutdown()
-        controller_bus.shutdown()
+    controller = lockstep_on_virtual(scenario, "lockstep-flooded", Flooded)
     assert controller.finished
     assert np.array_equal(controller.log_rows.data, simulate(scenario).log.data)
     assert controller.monitor.counts.unknown >= controller.tick
