@@ -99,7 +99,9 @@ class ZenohBus(can.BusABC):
         self.receive_own_messages = bool(receive_own_messages)
         self.rx_malformed = 0
         self._linger = float(linger)
-        self._rx: queue.SimpleQueue[Message | None] = queue.SimpleQueue()
+        self._rx: queue.Queue[Message | None] = queue.Queue()
+        """Not a queue.SimpleQueue: its get(timeout) waits for ever once a signal handler (a
+        node's SIGINT) has outlasted the timeout (CPython 3.11, _queuemodule.c)."""
         self._state = BusState.ACTIVE
         self._closed = False
         self._close_lock = threading.Lock()

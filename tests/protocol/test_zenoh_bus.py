@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -250,6 +251,39 @@ def test_a_received_frame_carries_the_receive_time(buses: Callable[..., ZenohBus
     a.send(can.Message(timestamp=1.0, arbitration_id=1, is_extended_id=False))
     msg = b.recv(5)
     assert msg is not None and before <= msg.timestamp <= time.time()
+
+
+def test_a_signal_handled_while_recv_waits_does_not_make_the_wait_endless(
+    buses: Callable[..., ZenohBus],
+) -> None:
+    """A node's SIGINT handler runs inside the receive it interrupts. With the receive queue a
+    queue.SimpleQueue, a handler that outlasted the timeout left get() waiting with a negative
+    timeout, which is for ever: a plant stopped after its controller had finished never saw
+    its stop. The rescue frame, sent 3 s on, only keeps a failing test from hanging."""
+    bus = buses("signalled")
+    rescuer = buses("signalled")
+    wait_until(lambda: rescuer.has_receivers, 5, "a receiver")
+    handled: list[int] = []
+
+    def on_signal(signum: int, frame: object) -> None:
+        handled.append(signum)
+        time.sleep(0.1)  # longer than the receive's timeout
+
+    previous = signal.signal(signal.SIGUSR2, on_signal)
+    poke = threading.Timer(0.02, signal.pthread_kill, (threading.get_ident(), signal.SIGUSR2))
+    rescue = threading.Timer(3.0, rescuer.send, (can.Message(arbitration_id=7),))
+    try:
+        poke.start()
+        rescue.start()
+        started = time.monotonic()
+        message = bus.recv(timeout=0.05)
+        waited = time.monotonic() - started
+    finally:
+        poke.cancel()
+        rescue.cancel()
+        signal.signal(signal.SIGUSR2, previous)
+    assert handled == [signal.SIGUSR2]
+    assert message is None and waited < 1.0, (message, waited)
 
 
 def test_receive_own_messages_delivers_own_frames_marked_tx(
