@@ -89,7 +89,12 @@ def set_reference_task(operator: zenoh.Session, mode: str = "fuzzy") -> None:
 
     def described() -> bool:  # the controller describes its task back within a status period
         scenario = latest(operator, f"scara/{ROBOT}/scenario", timeout=1.0)
-        return scenario is not None and scenario["mode"] == mode
+        return (  # all three set: the mode alone may be the default, described before the rest
+            scenario is not None
+            and scenario["waypoints"] == REFERENCE["waypoints"]
+            and "obstacle" in scenario
+            and scenario["mode"] == mode
+        )
 
     wait_until(described, 5.0, "the controller to describe the task it holds")
 
