@@ -30,6 +30,8 @@ from typing import Any
 import can
 import pytest
 
+from protocol.bus import enlarge_receive_buffer
+
 ROOT = Path(__file__).resolve().parent.parent
 VCAN0 = Path("/sys/class/net/vcan0")
 HIL_REQUIRED = os.environ.get("SCARA_HIL_REQUIRED") == "1"
@@ -227,6 +229,7 @@ class Observer:
 
     def __init__(self, bus: can.BusABC) -> None:
         self.bus = bus
+        enlarge_receive_buffer(bus)  # a stalled test process must not lose a frame it checks
         self._frames: list[can.Message] = []
         self._lock = threading.Lock()
         self._changed = threading.Condition(self._lock)
