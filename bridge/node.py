@@ -13,7 +13,9 @@ Two sides that never wait for each other:
   forwarded over CAN, answered with the controller's own answer.
 
 Joint state and TCP go out as they arrive, at most at their configured rate (100 Hz by
-default, so a sample is never older than the frame it comes from); the other keys on change.
+default); one that comes before its turn waits for it, a newer one replacing it, so the last
+state before the arm stops is always published (``bridge/rate.py``). The other keys go out
+on change.
 Access control is the Zenoh router's (``config/zenoh/secure-router.json5``).
 """
 
@@ -39,6 +41,7 @@ from bridge.commands import (
     parse_payload,
 )
 from bridge.operator import Answer, OperatorNode
+from bridge.rate import RateLimit
 from bridge.session import add_zenoh_arguments, endpoint_from_args
 from bridge.view import Event
 from controller.planner import load_planned
@@ -95,7 +98,9 @@ class Bridge:
         self.published = dict.fromkeys(STATE_KEYS, 0)
         self.dropped = dict.fromkeys(STATE_KEYS, 0)
         self._seq = dict.fromkeys(STATE_KEYS, 0)
-        self._due = dict.fromkeys(STATE_KEYS, -float("inf"))
+        self._limits: dict[str, RateLimit[dict[str, Any]]] = {
+            name: RateLimit(rate) for name, rate in rates.items() if rate
+        }
         self._last_payload: dict[str, dict[str, Any]] = {}
         self._latest: dict[str, bytes] = {}
         self._latest_lock = threading.Lock()
@@ -134,6 +139,10 @@ class Bridge:
             self.node.step(STEP)
             self._run_commands()
             now = time.monotonic()
+            for name, limit in self._limits.items():
+                waited = limit.due(now)
+                if waited is not None:
+                    self._send(name, waited)
             if now >= next_status:
                 next_status = now + STATUS_PERIOD
                 self._offer("status", self.node.view.status_payload(time.time(), self._counters()))
@@ -162,22 +171,21 @@ class Bridge:
             self._offer("scenario", task_document(task))
 
     def _offer(self, name: str, payload: dict[str, Any]) -> None:
-        """Queue ``payload`` for ``name`` if its rate allows and it changed (or drop it)."""
-        now = time.monotonic()
-        rate = self.rates.get(name, 0.0)
-        if rate:
-            if now < self._due[name]:
-                return
-            # on a grid of 1/rate, so the mean rate is the rate even when the frames behind
-            # the samples come at a rate that is not a multiple of it
-            period = 1.0 / rate
-            late = now - self._due[name] >= period
-            self._due[name] = now + period if late else self._due[name] + period
-        else:
-            content = {k: v for k, v in payload.items() if k != "t"}
-            if name != "events" and self._last_payload.get(name) == content:
-                return
-            self._last_payload[name] = content
+        """Send ``payload`` for ``name`` if its rate allows (else it waits) or it changed."""
+        limit = self._limits.get(name)
+        if limit is not None:
+            allowed = limit.offer(time.monotonic(), payload)
+            if allowed is not None:
+                self._send(name, allowed)
+            return
+        content = {k: v for k, v in payload.items() if k != "t"}
+        if name != "events" and self._last_payload.get(name) == content:
+            return
+        self._last_payload[name] = content
+        self._send(name, payload)
+
+    def _send(self, name: str, payload: dict[str, Any]) -> None:
+        """Queue ``payload`` for the Zenoh side, numbered, or drop and count it when full."""
         if name != "scenario":
             payload = payload | {"seq": self._seq[name]}
         try:
