@@ -1,7 +1,8 @@
 """Kinematics of the RRP SCARA arm (paper section 2).
 
 Pure functions on plain floats, written with :mod:`math` rather than numpy: they run on
-every control tick (500-1000 Hz), where numpy's per-call overhead would dominate.
+every control tick (500-1000 Hz), where numpy's per-call overhead would dominate; only
+:func:`clearly_reachable` takes arrays, to check a whole planned path at once.
 
 Angles are in radians and lengths in metres. ``theta2`` is the elbow angle relative to
 link 1: ``theta2 = 0`` is the stretched arm and ``|theta2| = pi`` the folded one, the two
@@ -98,6 +99,39 @@ def inverse(
         _clip(theta1, config.theta1_min, config.theta1_max),
         _clip(theta2, config.theta2_min, config.theta2_max),
         _clip(config.d0 - z, config.d3_min, config.d3_max),
+    )
+
+
+CLEAR_MARGIN = 1e-9
+"""How far inside every limit :func:`clearly_reachable` wants a point (rad, m, and on
+cos theta2): far more than numpy's and :mod:`math`'s last-bit differences."""
+
+
+def clearly_reachable(
+    config: RobotConfig,
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64],
+    elbow: Elbow = Elbow.DOWN,
+) -> npt.NDArray[np.bool_]:
+    """Which points :func:`inverse` certainly accepts, CLEAR_MARGIN inside every limit it
+    checks, for many points at once; ``False`` where it may refuse (ask it there)."""
+    a1, a2 = config.a1, config.a2
+    margin = CLEAR_MARGIN
+    c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2.0 * a1 * a2)
+    inside = (config.z_min + margin < z) & (z < config.z_max - margin) & (np.abs(c2) < 1 - margin)
+    c2 = np.clip(c2, -1.0, 1.0)
+    s2 = elbow.value * np.sqrt((1.0 - c2) * (1.0 + c2))
+    theta2 = np.arctan2(s2, c2)
+    theta1 = np.arctan2(y, x) - np.arctan2(a2 * s2, a1 + a2 * c2)
+    theta1 = (theta1 + math.pi) % math.tau - math.pi  # the wrap near +-pi is left to inverse
+    return np.asarray(
+        inside
+        & (np.abs(theta1) < math.pi - margin)
+        & (config.theta1_min + margin < theta1)
+        & (theta1 < config.theta1_max - margin)
+        & (config.theta2_min + margin < theta2)
+        & (theta2 < config.theta2_max - margin)
     )
 
 

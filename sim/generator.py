@@ -397,17 +397,17 @@ def _fits_the_rules(scenario: Scenario, obstacle: EllipticCylinder) -> bool:
         return False
     plan = plan_of(scenario)
     start, end = scenario.waypoints[0].t, scenario.waypoints[-1].t
-    heights = [plan.evaluate(float(t))[0][2] for t in np.linspace(start, end, PATH_SAMPLES)]
+    heights = plan.sample(np.linspace(start, end, PATH_SAMPLES))[0][:, 2]
     top = obstacle.height + obstacle.inflation
-    if min(heights) > top + HEIGHT_GAP:
+    if heights.min() > top + HEIGHT_GAP:
         return True  # the path passes over it
-    if max(heights) > top - HEIGHT_GAP or not waypoints_clear(scenario):
+    if heights.max() > top - HEIGHT_GAP or not waypoints_clear(scenario):
         return False
     a, b = obstacle.semi_axes
     for angle in np.linspace(0.0, 2.0 * math.pi, 36, endpoint=False):
         x, y = obstacle.to_world((a + PASSAGE) * math.cos(angle), (b + PASSAGE) * math.sin(angle))
         try:
-            inverse(scenario.robot, x, y, heights[0], Elbow.DOWN)
+            inverse(scenario.robot, x, y, float(heights[0]), Elbow.DOWN)
         except KinematicsError:
             return False
     return True
@@ -421,7 +421,8 @@ def _moves_sensibly(scenario: Scenario) -> bool:
     crawl = threshold * CRAWL_FRACTION / STOP_SPEED_FRACTION
     plan = plan_of(scenario)
     times = np.linspace(scenario.waypoints[0].t, scenario.waypoints[-1].t, PATH_SAMPLES)
-    speeds = np.array([math.hypot(*plan.evaluate(float(t))[1][:2]) for t in times])
+    velocities = plan.sample(times)[1].tolist()
+    speeds = np.array([math.hypot(vx, vy) for vx, vy, _ in velocities])
     near_rest = np.any(np.abs(times[:, None] - rests[None, :]) <= STOP_REST_MARGIN, axis=1)
     crawling = (speeds < crawl) & ~near_rest
     return not crawling.any()

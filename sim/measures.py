@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from controller.planner import Trajectory, plan_of
+from controller.planner import plan_of
 from controller.runlog import RunLog
 from protocol.kinematics import tcp_velocity
 from protocol.scenario import WAYPOINT_TOLERANCE as WAYPOINT_TOLERANCE  # the one definition
@@ -88,7 +88,7 @@ def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
     waypoints = scenario.waypoints
     planned = plan_of(scenario)
     samples = np.linspace(waypoints[0].t, waypoints[-1].t, PLAN_SAMPLES)
-    planned_points = evaluate_positions(planned, samples)
+    planned_points = planned.sample(samples)[0]
     planned_length = float(np.sum(np.linalg.norm(np.diff(planned_points[:, :2], axis=0), axis=1)))
     threshold = STOP_SPEED_FRACTION * planned_length / (waypoints[-1].t - waypoints[0].t)
     rests = [
@@ -317,20 +317,6 @@ def near_any(values: np.ndarray, marks: np.ndarray, margin: float) -> np.ndarray
     """Which ``values`` lie within ``margin`` of one of ``marks`` (along the last axis of
     ``marks``, which may hold one row of marks per column of ``values``; NaN marks none)."""
     return np.asarray(np.any(np.abs(values[..., None] - marks) <= margin, axis=-1))
-
-
-def evaluate_positions(trajectory: Trajectory, times: Array) -> Array:
-    """``trajectory.evaluate(t)[0]`` for each of ``times`` (within the plan), bit for bit."""
-    starts = np.array(trajectory.times[:-1])
-    segment = np.searchsorted(starts, times, side="right") - 1
-    k = np.array(
-        [
-            [trajectory.segment(i, axis).coefficients for axis in range(trajectory.dims)]
-            for i in range(len(starts))
-        ]
-    )[segment]
-    tau = (times - starts[segment])[:, None]
-    return np.asarray(((k[..., 3] * tau + k[..., 2]) * tau + k[..., 1]) * tau + k[..., 0])
 
 
 def format_table(results: dict[str, Measures]) -> str:

@@ -455,6 +455,21 @@ def test_trajectory_validation_names_the_field(
     assert info.value.field == field
 
 
+@settings(max_examples=50)
+@given(st.integers(2, 7), st.integers(0, 2**32 - 1))
+def test_sample_is_evaluate_bit_for_bit(count: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    times = np.cumsum(rng.uniform(0.1, 3.0, count)) - 1.0
+    trajectory = Trajectory(times.tolist(), rng.uniform(-1.0, 1.0, (count, 3)).tolist())
+    at = np.concatenate([times, rng.uniform(times[0], times[-1], 200)])
+    positions, velocities = trajectory.sample(at)
+    for t, position, velocity in zip(
+        at.tolist(), positions.tolist(), velocities.tolist(), strict=True
+    ):
+        expected = trajectory.evaluate(t)
+        assert (tuple(position), tuple(velocity)) == (expected[0], expected[1])
+
+
 # --- a scenario's plan ------------------------------------------------------------------
 
 

@@ -12,8 +12,10 @@ from hypothesis import strategies as st
 from protocol.config import RobotConfig
 from protocol.errors import JointLimitError, ScaraError, UnreachableError
 from protocol.kinematics import (
+    CLEAR_MARGIN,
     DAMPING_S2_REF,
     Elbow,
+    clearly_reachable,
     forward,
     inverse,
     jacobian_planar,
@@ -220,3 +222,37 @@ def test_round_trip_property(theta1: float, theta2: float, negative: bool, d3: f
     point = forward(CONFIG, theta1, theta2, d3)
     elbow = _elbow_of(theta2)
     assert inverse(CONFIG, *point, elbow) == pytest.approx((theta1, theta2, d3), abs=1e-9, rel=0.0)
+
+
+def _inverse_accepts(x: float, y: float, z: float, elbow: Elbow) -> bool:
+    try:
+        inverse(CONFIG, x, y, z, elbow)
+    except ScaraError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("elbow", Elbow)
+def test_clearly_reachable_never_claims_a_point_inverse_refuses(elbow: Elbow) -> None:
+    """On a grid over and past the workspace, and on and just across each of its edges
+    (reach, stroke, both joint limits): where it says yes, inverse says yes; and it says no
+    only near an edge (the one by one check that follows it stays rare)."""
+    rng = np.random.default_rng(5)
+    points = [rng.uniform((-0.8, -0.8, CONFIG.z_min - 0.05), (0.8, 0.8, CONFIG.z_max + 0.05))
+              for _ in range(20000)]  # fmt: skip
+    for theta1 in np.linspace(CONFIG.theta1_min, CONFIG.theta1_max, 41):
+        for theta2 in (CONFIG.theta2_min, 0.0, CONFIG.theta2_max):
+            for nudge in (-1e-8, -CLEAR_MARGIN, 0.0, CLEAR_MARGIN, 1e-8):
+                for z in (CONFIG.z_min + nudge, Z_MID, CONFIG.z_max + nudge):
+                    points.append(np.array(forward(CONFIG, theta1 + nudge, theta2 + nudge, 0.0)))
+                    points[-1][2] = z
+    grid = np.array(points)
+    claimed = clearly_reachable(CONFIG, grid[:, 0], grid[:, 1], grid[:, 2], elbow)
+    accepted = np.array([_inverse_accepts(*point, elbow) for point in grid.tolist()])
+    assert not (claimed & ~accepted).any(), grid[claimed & ~accepted][:5]
+    assert np.array_equal(claimed[:20000], accepted[:20000])  # the random points: no edge cases
+
+
+def test_clearly_reachable_says_no_to_nan() -> None:
+    nan = np.array([math.nan])
+    assert not clearly_reachable(CONFIG, nan, nan, nan).any()
