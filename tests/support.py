@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -124,6 +125,36 @@ class Transport:
         return can.Bus(interface=self.interface, channel=self.channel, **self.options)
 
 
+def native_stacks(group: int) -> str:
+    """Every thread's native stack in each process of process group ``group``, by gdb if
+    this machine has it: what a process that will not stop is waiting in (a Zenoh close, a
+    lock), for processes that cannot print their own (python-can's tools)."""
+    gdb = shutil.which("gdb")
+    if gdb is None:
+        return "(no gdb here for the stacks)"
+    members = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[2]) == group:
+                members.append(int(stat.parent.name))
+    found = []
+    for pid in sorted(members):
+        try:
+            done = subprocess.run(
+                [gdb, "-p", str(pid), "-batch", "-ex", "thread apply all bt 10"],
+                capture_output=True, text=True, timeout=30,
+            )  # fmt: skip
+        except subprocess.TimeoutExpired:
+            found.append(f"--- pid {pid}: gdb timed out")
+            continue
+        frames = [
+            line[:160] for line in done.stdout.splitlines() if line.startswith(("Thread", "#"))
+        ]
+        found.append(f"--- pid {pid} native stacks ---\n" + "\n".join(frames))
+    return "\n".join(found)
+
+
 class Process:
     """One child process started by :class:`Processes`; output goes to a file."""
 
@@ -156,9 +187,10 @@ class Process:
         try:
             return self.popen.wait(timeout)
         except subprocess.TimeoutExpired:
+            stacks = native_stacks(self.popen.pid)
             self.kill()
             raise AssertionError(
-                f"{self.name} still running after {timeout} s\n{self.output()}"
+                f"{self.name} still running after {timeout} s\n{self.output()}\n{stacks}"
             ) from None
 
     def interrupt(self, grace: float = 5.0) -> int:
@@ -169,10 +201,13 @@ class Process:
             try:
                 self.popen.wait(grace * SLOWDOWN)
             except subprocess.TimeoutExpired:
+                stacks = native_stacks(self.popen.pid)
                 with contextlib.suppress(ProcessLookupError):  # its threads' stacks, if a node
                     os.kill(self.popen.pid, signal.SIGUSR1)
                 time.sleep(0.5)
                 self.kill()
+                with self.log.open("a") as log:
+                    log.write(f"\n{self.name} did not stop on SIGINT:\n{stacks}\n")
         return self.popen.returncode
 
     def signal(self, number: int) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import can
 import pytest
-from support import ROOT, wait_until
+from support import ROOT, native_stacks, wait_until
 
 from protocol.zenoh_can import ZenohBus
 
@@ -39,6 +39,7 @@ def tool(*args: str) -> subprocess.Popen[str]:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        start_new_session=True,  # a group of its own, for native_stacks
     )
 
 
@@ -62,7 +63,12 @@ def test_can_logger_records_what_the_bus_sends(
             bus.send(msg)
         time.sleep(1.0)  # the logger receives as it goes; it writes the file on SIGINT
         logger.send_signal(signal.SIGINT)
-        _, err = logger.communicate(timeout=20)
+        try:
+            _, err = logger.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(
+                f"can.logger ignored SIGINT\n{native_stacks(logger.pid)}"
+            ) from None
     finally:
         if logger.poll() is None:
             logger.kill()
