@@ -29,7 +29,7 @@ from textual.containers import Horizontal, Vertical
 from textual.widgets import Footer, Header, RichLog, Static
 
 from bridge.session import ZenohEndpoint, add_zenoh_arguments, endpoint_from_args
-from protocol.cli import add_verbosity, configure_logging, number
+from protocol.cli import add_verbosity, configure_logging, interruptible, number
 from protocol.errors import ScaraError
 from protocol.keys import STATE_KEYS, check_robot, command_key, state_key
 from protocol.scenario import Scenario, load_scenario, task_document
@@ -379,6 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
+    interruptible()
     try:
         check_robot(args.robot)
         endpoint: ZenohEndpoint = endpoint_from_args(args)

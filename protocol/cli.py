@@ -1,11 +1,13 @@
 """What every command shares: ``-v`` for diagnostics through :mod:`logging` (python-can's
-way), and argparse types that check a number's range and name the flag when it is wrong."""
+way), argparse types that check a number's range and name the flag when it is wrong, and
+stopping on SIGINT however the command was started."""
 
 from __future__ import annotations
 
 import argparse
 import logging
 import math
+import signal
 from collections.abc import Callable
 
 
@@ -26,6 +28,14 @@ def configure_logging(verbosity: int) -> None:
         logging.getLogger().setLevel(logging.DEBUG)
     elif verbosity == 1:
         logging.getLogger("scara").setLevel(logging.INFO)
+
+
+def interruptible() -> None:
+    """SIGINT (Ctrl-C, ``kill -INT``) raises KeyboardInterrupt in this process even when it
+    was started with SIGINT ignored: a shell without job control (a script's ``cmd &``)
+    starts its background commands so, Python then keeps ignoring it, and the command, or a
+    test or launcher stopping it the documented way, would wait for ever."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def number(

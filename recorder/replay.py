@@ -31,7 +31,7 @@ from tqdm import tqdm
 from bridge.session import add_zenoh_arguments, endpoint_from_args
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, open_bus_from_args
-from protocol.cli import add_verbosity, configure_logging, number
+from protocol.cli import add_verbosity, configure_logging, interruptible, number
 from protocol.errors import ScaraError
 from protocol.keys import STATE_KEYS, check_robot, state_key
 from protocol.realtime import tune_process
@@ -333,6 +333,7 @@ def regression_main(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
+    interruptible()
     if args.regress:
         return regression_main(args)
     tune_process()  # precise wake-ups: the pace is the point

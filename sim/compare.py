@@ -27,6 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from controller.fuzzy import OUTPUT_TERMS, RuleBase
+from protocol.cli import interruptible
 from protocol.config import ControllerConfig
 from protocol.errors import ConfigError
 from protocol.scenario import Mode, Scenario
@@ -500,6 +501,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    interruptible()
     for flag, value, least in (
         ("--count", args.count, 1),
         ("--workers", args.workers, 1),

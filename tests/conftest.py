@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -32,6 +33,14 @@ from protocol.zenoh_can.config import router_reachable
 settings.register_profile("local", deadline=None)
 settings.register_profile("ci", deadline=None, derandomize=True)
 settings.load_profile("ci" if os.environ.get("CI") else "local")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """SIGINT back to Python's own handler here, so that the processes the tests start and
+    stop with SIGINT (python-can's tools among them) do not inherit it ignored from a shell
+    without job control that started the tests in the background (a script's ``cmd &``);
+    our own commands stop on SIGINT either way (``protocol.cli.interruptible``)."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

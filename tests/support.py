@@ -155,6 +155,11 @@ def native_stacks(group: int) -> str:
     return "\n".join(found)
 
 
+SIGINT_IGNORED = ("sh", "-c", 'trap "" INT; exec "$0" "$@"')
+"""A ``prefix`` for :meth:`Processes.start`: the command starts with SIGINT ignored, as a
+shell without job control starts a background job (a script's ``cmd &``)."""
+
+
 class Process:
     """One child process started by :class:`Processes`; output goes to a file."""
 

@@ -10,16 +10,17 @@ import time
 from typing import Any
 
 from robot_stack import COMMS, ROBOT, START, command, latest, open_client
-from support import Processes, free_port, wait_until
+from support import SIGINT_IGNORED, Processes, free_port, wait_until
 
 from protocol.zenoh_can.config import router_reachable
 
 
 def test_serve_runs_the_scenario_on_command_and_stops_on_ctrl_c(processes: Processes) -> None:
     port = free_port()
-    launcher = processes.start(
+    launcher = processes.start(  # as a script's `scara-run ... &` starts it: SIGINT ignored
         "sim.launch", "reference", "--serve", *COMMS, "--interface", "zenoh",
         "--channel", "served", "--bus-option", f"port={port}", name="scara-run",
+        prefix=SIGINT_IGNORED,
     )  # fmt: skip
     wait_until(lambda: router_reachable("127.0.0.1", port), START, "the launcher's router")
     session = open_client(port)

@@ -1,11 +1,16 @@
-"""The argparse types every command shares (``protocol.cli``): a bad number names the flag."""
+"""What every command shares (``protocol.cli``): a bad number names the flag; SIGINT stops
+a command however it was started."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import signal
+import subprocess
+import sys
 
 import pytest
+from support import ROOT, SIGINT_IGNORED
 
 from protocol.cli import number
 
@@ -35,3 +40,30 @@ def test_argparse_names_the_flag_and_the_value(capsys: pytest.CaptureFixture[str
     assert exited.value.code == 2
     error = capsys.readouterr().err
     assert "--rate" in error and "0" in error and "[100, 1000]" in error
+
+
+@pytest.mark.parametrize("restored", [False, True])
+def test_interruptible_stops_on_sigint_a_process_started_with_it_ignored(restored: bool) -> None:
+    """Without it, a command a script started in the background ignores SIGINT for ever."""
+    code = "import sys, time\n"
+    if restored:
+        code += "from protocol.cli import interruptible\ninterruptible()\n"
+    code += "print('ready', flush=True)\ntime.sleep(30)\n"
+    process = subprocess.Popen(
+        [*SIGINT_IGNORED, sys.executable, "-c", code],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert process.stdout is not None and process.stdout.readline() == "ready\n"
+        process.send_signal(signal.SIGINT)
+        try:
+            _, err = process.communicate(timeout=10)
+            stopped = True
+        except subprocess.TimeoutExpired:
+            stopped = False
+    finally:
+        process.kill()
+        process.wait()
+    assert stopped == restored
+    if restored:
+        assert "KeyboardInterrupt" in err
