@@ -75,8 +75,9 @@ def _max(a: Array | float, b: Array | float) -> Array:
 
 
 def _smoothstep(x: Array) -> Array:
-    """:func:`controller.coordination.smoothstep`."""
-    x = np.where(x < 0.0, 0.0, np.where(x > 1.0, 1.0, x))
+    """:func:`controller.coordination.smoothstep` (clamped by two ufuncs, not two compares and
+    two wheres: the same bits, NaN and signed zeros included, as the result shows)."""
+    x = np.minimum(np.maximum(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x)
 
 
@@ -770,7 +771,9 @@ class _Batch:
             px, py, reference, reference_velocity, reference_acceleration
         )
         avoiding_v, avoiding_omega = self._avoid(measurement, min_distance, px, py)
-        at_waypoint = self._at_waypoint(progress, px, py)
+        depth_next = _depth(plans.room, plans.point, px, py)
+        depth_before = _depth(plans.room_before, plans.point_before, px, py)
+        at_waypoint = self._at_waypoint(progress, depth_next, depth_before)
         k_t, k_c = self._weights(measurement, min_distance, at_waypoint)
         total = k_t + k_c
         blended_v = (k_t * tracking_v + k_c * avoiding_v) / total
@@ -780,16 +783,11 @@ class _Batch:
         vy = blended_v * heading_sin
         # ControlLaw._waited_for: p_j-1 until the TCP has passed it, then p_j; the height loop
         # steers to its height by (1 - rate) times how deep the TCP is in its free room.
-        plans = self.plans
         waited_is_next = (
             np.maximum(plans.index - 1, np.minimum(self.reached + 1, plans.index)) == plans.index
         )
         waited = np.where(waited_is_next, plans.point, plans.point_before)
-        depth = np.where(
-            waited_is_next,
-            _depth(plans.room, plans.point, px, py),
-            _depth(plans.room_before, plans.point_before, px, py),
-        )
+        depth = np.where(waited_is_next, depth_next, depth_before)
         pull = (1.0 - self.rate) * depth
         vz = reference_velocity[2] + config.height_gain * (
             reference[2] + pull * (waited[2] - reference[2]) - pz
@@ -853,14 +851,11 @@ class _Batch:
         )
         return 1.0 - hold
 
-    def _at_waypoint(self, progress: Array, px: Array, py: Array) -> Array:
-        """ControlLaw._at_waypoint: how deep the TCP is in the free room of p_j (or p_j-1)."""
+    def _at_waypoint(self, progress: Array, depth_next: Array, depth_before: Array) -> Array:
+        """ControlLaw._at_waypoint, from the TCP's depth in the free rooms of p_j and p_j-1."""
         plans = self.plans
         share = _smoothstep((progress - plans.time_before) / plans.release)
-        return _max(
-            share * _depth(plans.room, plans.point, px, py),
-            (1.0 - share) * _depth(plans.room_before, plans.point_before, px, py),
-        )
+        return _max(share * depth_next, (1.0 - share) * depth_before)
 
     def _measure(
         self,
