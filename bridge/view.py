@@ -227,12 +227,15 @@ def _transition(before: str, after: str, faults: list[str], progress: int) -> li
     """The events of the controller's state going from ``before`` to ``after``."""
     if before == after:
         return []
+    started: list[Event] = []
+    if after in RUNNING and before not in RUNNING:  # a run may say HOLD before RUNNING
+        started = [("run_started", {})]
     if after == "running" and before == "hold":
         return [("resumed", {})]
-    if after == "running":
-        return [("run_started", {})]
     if after == "hold":
-        return [("hold", {})]
+        return [*started, ("hold", {})]
+    if after == "running":
+        return started
     if after == "fault":
         return [("fault", {"faults": faults})]
     if after == "estop":

@@ -136,7 +136,7 @@ def test_every_key_arrives_at_its_rate_and_fits_its_schema_and_a_late_joiner_see
             assert sequence == sorted(set(sequence)), name
     started = recorder.event("run_started")
     finished = recorder.event("run_finished")
-    assert started is not None and finished is not None
+    assert started is not None and finished is not None, recorder.events()
     for name in ("joints", "tcp"):  # 100 Hz by default, while the plant sends at 500 Hz
         times = [
             p["t"]

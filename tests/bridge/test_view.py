@@ -103,6 +103,20 @@ def test_a_run_reads_as_events_in_order_started_waypoints_finished() -> None:
         valid("events", {"t": 0.0, "event": name, "detail": detail})
 
 
+def test_a_run_whose_first_status_is_a_hold_still_reads_as_started() -> None:
+    """A controller that holds in its first ticks (the plant's state late, on a loaded
+    machine) may say HOLD before it ever says RUNNING: the run has started all the same
+    (CI saw a run with no run_started)."""
+    bus = Bus()
+    assert bus.controller(NodeState.READY) == []
+    assert bus.controller(NodeState.HOLD, waypoint=0, progress=0) == ["run_started", "hold"]
+    assert bus.controller(NodeState.RUNNING, waypoint=1, progress=5) == [
+        "waypoint_reached",  # the run frame comes before the status
+        "resumed",
+    ]
+    assert bus.controller(NodeState.READY, waypoint=1, progress=100) == ["run_finished"]
+
+
 def test_a_bridge_that_joins_mid_run_reports_nothing_of_the_past() -> None:
     bus = Bus()
     assert bus.controller(NodeState.RUNNING, waypoint=2, progress=40) == []
