@@ -42,6 +42,8 @@ RATE_CHANGE = 0.1
 """s: the plan's rate goes from 1 to 0 or back in no less than this, so the reference never
 brakes or starts harder than the arm can follow (an arm overshooting a waiting reference
 would have to turn back: a stop)."""
+BEYOND_END = 0.01
+"""m: on the last segment AO gives way once the obstacle is this much farther than p_j."""
 ROOM_MAX = 0.05
 """m: the free room around a waypoint (see :meth:`ControlLaw._at_waypoint`) is at most this."""
 GOAL_KEPT = (0.005, 0.03)
@@ -136,7 +138,7 @@ class ControlLaw:
         index = self.trajectory.segment_index(progress)
         self._mark_reached(index, tcp)
         behind = self._behind(index, tcp, reference)
-        wanted = self._wanted_rate(progress, index, behind, self._behind(index - 1, tcp, reference))
+        wanted = self._wanted_rate(progress, index, behind, self._away(index - 1, tcp))
         step = self._rate_step
         rate = self.rate = min(max(wanted, self.rate - step), self.rate + step)
         # The reference moves at rate times the plan's velocity: the path's curvature, and
@@ -158,7 +160,8 @@ class ControlLaw:
             (squared * acceleration[0], squared * acceleration[1]),
         )
         avoiding = self._avoid(measurement, (tcp[0], tcp[1]))
-        k_t, k_c = self.coordinator.weights(measurement, self._at_waypoint(progress, index, tcp))
+        at_waypoint = self._at_waypoint(progress, index, tcp, measurement.clearance)
+        k_t, k_c = self.coordinator.weights(measurement, at_waypoint)
         total = k_t + k_c
         blended = Command(
             (k_t * tracking.v + k_c * avoiding.v) / total,
@@ -167,6 +170,8 @@ class ControlLaw:
 
         vx = blended.v * math.cos(self.heading)
         vy = blended.v * math.sin(self.heading)
+        vx += pull * (config.position_gain * (waited[0] - tcp[0]) - vx)
+        vy += pull * (config.position_gain * (waited[1] - tcp[1]) - vy)
         vz = reference_velocity[2] + config.height_gain * (
             reference[2] + pull * (waited[2] - reference[2]) - tcp[2]
         )
@@ -198,18 +203,29 @@ class ControlLaw:
             return ROOM_MAX
         return min(max(obstacle.clearance(point[0], point[1]), 0.0), ROOM_MAX)
 
-    def _at_waypoint(self, progress: float, index: int, tcp: Point3) -> float:
+    def _at_waypoint(self, progress: float, index: int, tcp: Point3, clearance: float) -> float:
         """How deep the TCP is in the free room of the waypoint it heads for, 0..1.
 
         Inside the circle the obstacle leaves free around p_j the straight way to p_j cannot
         touch it, so AO is not needed there: 1 within half its radius, fading to 0 at its
         edge. Over the GATE_RELEASE after p_j-1's time the room of p_j-1 hands over to that
         of p_j, so that k_C never jumps when the plan moves on.
+
+        On the last segment the TCP also counts as in the free room as far as the obstacle
+        (``clearance``) is farther than p_j (over BEYOND_END): no straight way to p_j inside
+        that disc round the TCP can touch it, and AO would only take the arm round an obstacle
+        beyond the end of the plan. Only there: before an inner waypoint the plan goes on,
+        perhaps round that obstacle.
         """
         times = self.trajectory.times
         release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
         share = smoothstep((progress - times[index - 1]) / release)
-        return max(share * self._depth(index, tcp), (1.0 - share) * self._depth(index - 1, tcp))
+        depth = max(share * self._depth(index, tcp), (1.0 - share) * self._depth(index - 1, tcp))
+        if index == len(times) - 1 and clearance < math.inf:
+            end = self.trajectory.points[index]
+            to_end = length(tcp[0] - end[0], tcp[1] - end[1])
+            depth = max(depth, smoothstep((clearance - to_end) / BEYOND_END))
+        return depth
 
     def _depth(self, index: int, tcp: Point3) -> float:
         """How deep the TCP is in the free room of waypoint ``index``, 0..1."""
@@ -223,10 +239,15 @@ class ControlLaw:
     def _waited_for(self, index: int) -> int:
         """The waypoint a waiting plan waits for: p_j-1 until the TCP has passed it, then p_j.
 
-        The height loop steers to its height by 1 - rate (rate limited, so smoothly) times
-        how deep the TCP is in its free room (:meth:`_depth`, 0 far from it): a waiting
-        reference stands short of the waypoint, and so at another height, and an arm held
-        there would never come within PASSED of it while the plan waits for just that.
+        The TCP is steered to it by ``pull`` = 1 - rate (rate limited, so smoothly) times how
+        deep the TCP is in its free room (:meth:`_depth`, 0 far from it): the height loop aims
+        that share of the way from the reference's height to the waypoint's, and in the plane
+        the velocity goes that share of the way from the unicycle's to straight at the
+        waypoint (the final approach). A waiting reference stands short of the waypoint, and
+        an arm held to it, or beside the waypoint with a heading it cannot reverse without
+        stopping, would never come within PASSED while the plan waits for just that. Under
+        the unicycle the arm is holonomic, the straight way to the centre of the free room
+        stays in it, and the heading stays PT's, pointing along the plan for when it moves on.
         """
         return max(index - 1, min(self.reached + 1, index))
 
@@ -256,11 +277,21 @@ class ControlLaw:
             - length(reference[0] - x, reference[1] - y)
         )
 
-    def _wanted_rate(
-        self, progress: float, index: int, behind: float, behind_passed: float
-    ) -> float:
+    def _away(self, index: int, tcp: Point3) -> float:
+        """How far the TCP is from waypoint ``index`` in the plane; -inf once passed.
+
+        What holds the plan at a waypoint whose time it has passed: an arm between it and
+        the reference has :meth:`_behind` near 0 without ever having been to it.
+        """
+        if index <= self.reached:
+            return -math.inf
+        x, y, _ = self.trajectory.points[index]
+        return length(tcp[0] - x, tcp[1] - y)
+
+    def _wanted_rate(self, progress: float, index: int, behind: float, away_passed: float) -> float:
         """How fast the plan's time should run: 1, except near an inner waypoint while the arm
-        is off the way to it (:meth:`_behind`), where the plan slows down to wait for it.
+        is off the way to it (:meth:`_behind`) or, once the waypoint's time is past, away from
+        it (:meth:`_away`), where the plan slows down to wait for it.
 
         The gate of waypoint p_j closes over the GATE_APPROACH before its time and opens over
         the GATE_RELEASE after it; how much it holds the plan back grows across BEHIND with
@@ -277,7 +308,7 @@ class ControlLaw:
         if index >= 2:  # just past inner waypoint p_j-1
             release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
             gate = 1.0 - smoothstep((progress - times[index - 1]) / release)
-            hold = max(hold, gate * smoothstep((behind_passed - low) / (high - low)))
+            hold = max(hold, gate * smoothstep((away_passed - low) / (high - low)))
         return 1.0 - hold
 
     def _goal(self, progress: float, index: int, behind: float) -> tuple[float, float]:

@@ -28,6 +28,7 @@ import numpy.typing as npt
 from controller.behaviours import AHEAD_SPEED_FRACTION, PLANNED_REST_SPEED, TURN_LEFT, TURN_RIGHT
 from controller.control_law import (
     BEHIND,
+    BEYOND_END,
     GATE_APPROACH,
     GATE_RELEASE,
     GOAL_HANDOVER,
@@ -753,9 +754,9 @@ class _Batch:
         plans.advance(progress)
         reference, plan_velocity, plan_acceleration = plans.evaluate(progress)
         tcp = np.stack([px, py, pz])
-        behind, behind_passed = self._behind(tcp, reference)
+        behind, away_passed = self._behind(tcp, reference)
         self.rate = _min(
-            _max(self._wanted_rate(progress, behind, behind_passed), self.rate - self.rate_step),
+            _max(self._wanted_rate(progress, behind, away_passed), self.rate - self.rate_step),
             self.rate + self.rate_step,
         )
         reference_velocity = self.rate * plan_velocity
@@ -773,22 +774,25 @@ class _Batch:
         avoiding_v, avoiding_omega = self._avoid(measurement, min_distance, px, py)
         depth_next = _depth(plans.room, plans.point, px, py)
         depth_before = _depth(plans.room_before, plans.point_before, px, py)
-        at_waypoint = self._at_waypoint(progress, depth_next, depth_before)
+        at_waypoint = self._at_waypoint(progress, depth_next, depth_before, clearance, px, py)
         k_t, k_c = self._weights(measurement, min_distance, at_waypoint)
         total = k_t + k_c
         blended_v = (k_t * tracking_v + k_c * avoiding_v) / total
         blended_omega = (k_t * tracking_omega + k_c * avoiding_omega) / total
 
-        vx = blended_v * heading_cos
-        vy = blended_v * heading_sin
-        # ControlLaw._waited_for: p_j-1 until the TCP has passed it, then p_j; the height loop
-        # steers to its height by (1 - rate) times how deep the TCP is in its free room.
+        # ControlLaw._waited_for: p_j-1 until the TCP has passed it, then p_j; the TCP is
+        # steered to it by (1 - rate) times how deep the TCP is in its free room.
         waited_is_next = (
             np.maximum(plans.index - 1, np.minimum(self.reached + 1, plans.index)) == plans.index
         )
         waited = np.where(waited_is_next, plans.point, plans.point_before)
         depth = np.where(waited_is_next, depth_next, depth_before)
         pull = (1.0 - self.rate) * depth
+        vx = blended_v * heading_cos
+        vy = blended_v * heading_sin
+        gain = config.position_gain
+        vx = vx + pull * (gain * (waited[0] - px) - vx)
+        vy = vy + pull * (gain * (waited[1] - py) - vy)
         vz = reference_velocity[2] + config.height_gain * (
             reference[2] + pull * (waited[2] - reference[2]) - pz
         )
@@ -818,25 +822,25 @@ class _Batch:
         }
 
     def _behind(self, tcp: Array, reference: Array) -> tuple[Array, Array]:
-        """ControlLaw._mark_reached, then _behind of p_j and of p_j-1."""
+        """ControlLaw._mark_reached, then _behind of p_j and _away of p_j-1."""
         plans = self.plans
         index = plans.index
         for candidate, point in ((index - 1, plans.point_before), (index, plans.point)):
             passed = (candidate > self.reached) & (_norm3(tcp - point) <= PASSED)
             self.reached = np.where(passed, candidate, self.reached)
-        to_reference = _norm2(tcp[0] - reference[0], tcp[1] - reference[1])
-        behind = []
-        for index_now, point in ((index, plans.point), (index - 1, plans.point_before)):
-            x, y = point[0], point[1]
-            off = 0.5 * (
-                _norm2(tcp[0] - x, tcp[1] - y)
-                + to_reference
-                - _norm2(reference[0] - x, reference[1] - y)
-            )
-            behind.append(np.where(index_now <= self.reached, -math.inf, off))
-        return behind[0], behind[1]
+        x, y = plans.point[0], plans.point[1]
+        behind = 0.5 * (
+            _norm2(tcp[0] - x, tcp[1] - y)
+            + _norm2(tcp[0] - reference[0], tcp[1] - reference[1])
+            - _norm2(reference[0] - x, reference[1] - y)
+        )
+        away = _norm2(tcp[0] - plans.point_before[0], tcp[1] - plans.point_before[1])
+        return (
+            np.where(index <= self.reached, -math.inf, behind),
+            np.where(index - 1 <= self.reached, -math.inf, away),
+        )
 
-    def _wanted_rate(self, progress: Array, behind: Array, behind_passed: Array) -> Array:
+    def _wanted_rate(self, progress: Array, behind: Array, away_passed: Array) -> Array:
         """ControlLaw._wanted_rate: the plan slows near an inner waypoint the arm is off."""
         plans = self.plans
         low, high = BEHIND
@@ -846,16 +850,31 @@ class _Batch:
         gate = 1.0 - _smoothstep((progress - plans.time_before) / release)
         hold = np.where(
             plans.inner_before,
-            _max(hold, gate * _smoothstep((behind_passed - low) / (high - low))),
+            _max(hold, gate * _smoothstep((away_passed - low) / (high - low))),
             hold,
         )
         return 1.0 - hold
 
-    def _at_waypoint(self, progress: Array, depth_next: Array, depth_before: Array) -> Array:
-        """ControlLaw._at_waypoint, from the TCP's depth in the free rooms of p_j and p_j-1."""
+    def _at_waypoint(
+        self,
+        progress: Array,
+        depth_next: Array,
+        depth_before: Array,
+        clearance: Array,
+        px: Array,
+        py: Array,
+    ) -> Array:
+        """ControlLaw._at_waypoint, from the TCP's depth in the free rooms of p_j and p_j-1,
+        and on the last segment how much farther the obstacle is than p_j."""
         plans = self.plans
         share = _smoothstep((progress - plans.time_before) / plans.release)
-        return _max(share * depth_next, (1.0 - share) * depth_before)
+        depth = _max(share * depth_next, (1.0 - share) * depth_before)
+        last = (plans.index == plans.size - 1) & (clearance < math.inf)
+        if last.any():
+            to_end = _norm2(px - plans.point[0], py - plans.point[1])
+            clear_way = _smoothstep((clearance - to_end) / BEYOND_END)
+            depth = np.where(last, _max(depth, clear_way), depth)
+        return depth
 
     def _measure(
         self,
