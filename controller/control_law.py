@@ -145,9 +145,11 @@ class ControlLaw:
         # with it the turn rate PT feeds forward, stay those of the plan.
         reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
         squared = rate * rate
+        # How deep the TCP is in the free rooms of p_j and p_j-1: for the pull and for AO.
+        depth_next, depth_before = self._depth(index, tcp), self._depth(index - 1, tcp)
         waited_index = self._waited_for(index)
         waited = self.trajectory.points[waited_index]
-        pull = (1.0 - rate) * self._depth(waited_index, tcp)
+        pull = (1.0 - rate) * (depth_next if waited_index == index else depth_before)
         goal = self._goal(progress, index, behind)
         measurement = measure(self.obstacle, tcp, goal, config.sensing_range, self.heading)
 
@@ -160,7 +162,9 @@ class ControlLaw:
             (squared * acceleration[0], squared * acceleration[1]),
         )
         avoiding = self._avoid(measurement, (tcp[0], tcp[1]))
-        at_waypoint = self._at_waypoint(progress, index, tcp, measurement.clearance)
+        at_waypoint = self._at_waypoint(
+            progress, index, tcp, depth_next, depth_before, measurement.clearance
+        )
         k_t, k_c = self.coordinator.weights(measurement, at_waypoint)
         total = k_t + k_c
         blended = Command(
@@ -203,13 +207,22 @@ class ControlLaw:
             return ROOM_MAX
         return min(max(obstacle.clearance(point[0], point[1]), 0.0), ROOM_MAX)
 
-    def _at_waypoint(self, progress: float, index: int, tcp: Point3, clearance: float) -> float:
+    def _at_waypoint(
+        self,
+        progress: float,
+        index: int,
+        tcp: Point3,
+        depth_next: float,
+        depth_before: float,
+        clearance: float,
+    ) -> float:
         """How deep the TCP is in the free room of the waypoint it heads for, 0..1.
 
         Inside the circle the obstacle leaves free around p_j the straight way to p_j cannot
         touch it, so AO is not needed there: 1 within half its radius, fading to 0 at its
         edge. Over the GATE_RELEASE after p_j-1's time the room of p_j-1 hands over to that
-        of p_j, so that k_C never jumps when the plan moves on.
+        of p_j, so that k_C never jumps when the plan moves on (``depth_next`` and
+        ``depth_before``: :meth:`_depth` of p_j and p_j-1, which the pull uses too).
 
         On the last segment the TCP also counts as in the free room as far as the obstacle
         (``clearance``) is farther than p_j (over BEYOND_END): no straight way to p_j inside
@@ -220,7 +233,7 @@ class ControlLaw:
         times = self.trajectory.times
         release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
         share = smoothstep((progress - times[index - 1]) / release)
-        depth = max(share * self._depth(index, tcp), (1.0 - share) * self._depth(index - 1, tcp))
+        depth = max(share * depth_next, (1.0 - share) * depth_before)
         if index == len(times) - 1 and clearance < math.inf:
             end = self.trajectory.points[index]
             to_end = length(tcp[0] - end[0], tcp[1] - end[1])
