@@ -194,8 +194,9 @@ def run(count: int, workers: int, say: Callable[[str], None]) -> tuple[list[Row]
     notes.append(
         f"Scenarios: sim.generator seed {SEED}, mean duration "
         f"{np.mean([s.duration for s in scenarios]):.1f} s at "
-        f"{scenarios[0].controller.rate_hz:g} Hz; batches of at most {DEFAULT_BATCH} sorted "
-        "by duration, on a spawn process pool; generation is not in the batch wall time."
+        f"{scenarios[0].controller.rate_hz:g} Hz; {len(jobs)} batches of both modes' runs "
+        f"(at most {DEFAULT_BATCH} each) sorted by duration and cut where their costs come "
+        "out even, on a spawn process pool; generation is not in the batch wall time."
     )
     notes.append(
         f"The sampled scalar runs' measures agree with the batch's to {difference:.1e} "

@@ -11,9 +11,10 @@ differs in the last bit), and ties of ``min``/``max`` broken as Python does (:fu
 A branch becomes a mask: both sides are computed and one is kept, or the rare side is computed
 on the few scenarios that take it.
 
-Scenarios in one batch share the robot, the gains, the plant model and the mode; they differ
-in waypoints (padded), obstacle (a scenario without one gets a placeholder no tick measures)
-and duration (a finished scenario is still stepped, but no longer counted in its measures).
+Scenarios in one batch share the robot, the gains and the plant model; they differ in mode,
+waypoints (padded), obstacle (a scenario without one gets a placeholder no tick measures) and
+duration (a finished scenario leaves the arrays soon after it ends, and is no longer counted
+in its measures meanwhile).
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ BLOCK_TICKS = 64
 REACH_MARGIN = 1e-6
 """m: DM measures within the sensing range plus the long semi-axis (plus this, for rounding)
 of an obstacle's centre; farther, the clearance exceeds the range and DM finds nothing."""
-COMPACT_SHARE = 0.2
+COMPACT_SHARE = 0.03
 """Finished scenarios are dropped from the arrays once they are this share of them."""
 NEWTON_ITERATIONS = 64
 """As in :func:`protocol.geometry._ellipse_distance`."""
@@ -670,7 +671,7 @@ class _Batch:
     """The state of every scenario of a batch, advanced one tick per :meth:`step`."""
 
     def __init__(
-        self, scenarios: Sequence[Scenario], mode: Mode, rule_base: RuleBase | None
+        self, scenarios: Sequence[Scenario], modes: Sequence[Mode], rule_base: RuleBase | None
     ) -> None:
         first = scenarios[0]
         for scenario in scenarios:
@@ -682,7 +683,7 @@ class _Batch:
                 raise ValueError(
                     f"scenario {scenario.name!r}: a batch shares the robot, gains and plant"
                 )
-        self.mode = mode
+        self.fuzzy_rows = np.array([mode is Mode.FUZZY for mode in modes])
         self.robot, self.config, self.plant = first.robot, first.controller, first.plant
         self.period = self.config.period
         count = len(scenarios)
@@ -728,7 +729,12 @@ class _Batch:
     def keep(self, rows: Index) -> None:
         """Only the scenarios ``rows`` from now on (the others have finished)."""
         by_row = ("ticks", "start", "heading", "side", "progress", "rate", "last_t", "reached")
-        _keep(self, rows, (*by_row, "reach_squared"), ("position", "velocity", "previous"))
+        _keep(
+            self,
+            rows,
+            (*by_row, "fuzzy_rows", "reach_squared"),
+            ("position", "velocity", "previous"),
+        )
         self.obstacle, self.aim = self.obstacle.take(rows), self.aim.take(rows)
         self.plans.keep(rows)
         self.count = len(rows)
@@ -803,7 +809,6 @@ class _Batch:
         self.previous = command
         self._advance_plant(WIRE_COMMAND(command))
         return {
-            "t": t,
             "clock": t,
             "theta1": theta1,
             "theta2": theta2,
@@ -1015,19 +1020,21 @@ class _Batch:
     def _weights(
         self, measurement: _Measurement, min_distance: Array, at_waypoint: Array
     ) -> tuple[Array, Array]:
-        """k_T and k_C of the batch's coordinator (controller.coordination)."""
+        """k_T and k_C of each scenario's coordinator (controller.coordination)."""
         present, clearance, _, _, beta, ahead, toward = measurement
-        if self.mode is Mode.CONVENTIONAL:
+        fuzzy_rows = self.fuzzy_rows
+        k_t = np.full(self.count, self.k_t_without_obstacle)
+        k_c = np.zeros(self.count)
+        if not fuzzy_rows.all():
             switched = (
                 present
                 & (ahead > 0.0)
                 & (clearance < self.config.switch_distance)
                 & (at_waypoint == 0.0)
             )
-            return np.where(switched, 0.0, 1.0), np.where(switched, 1.0, 0.0)
-        k_t = np.full(self.count, self.k_t_without_obstacle)
-        k_c = np.zeros(self.count)
-        rows = np.flatnonzero(present)
+            k_t = np.where(fuzzy_rows, k_t, np.where(switched, 0.0, 1.0))
+            k_c = np.where(fuzzy_rows, k_c, np.where(switched, 1.0, 0.0))
+        rows = np.flatnonzero(present & fuzzy_rows)
         if len(rows):
             sensing_range = self.config.sensing_range
             distance = min_distance[rows]
@@ -1116,44 +1123,52 @@ class BatchRun:
 
 def simulate_batch(
     scenarios: Sequence[Scenario],
-    mode: Mode | None = None,
+    mode: Mode | Sequence[Mode] | None = None,
     rule_base: RuleBase | None = None,
     on_block: Callable[[int], None] | None = None,
 ) -> list[BatchRun]:
     """Each scenario's run as :func:`sim.simulation.simulate` gives it, all at once.
 
-    ``mode`` (else the scenarios' own, which must then agree) for the whole batch;
-    ``rule_base`` for the fuzzy coordinator (else Table 2's); ``on_block(n)`` is told of
-    every n scenario-ticks done (for a progress bar). A run's results do not depend on the
-    other scenarios of its batch.
+    ``mode``: one for the whole batch, or one per scenario, else the scenarios' own (a batch
+    may mix them: running both modes of the same scenarios in one batch pays numpy's
+    per-tick overhead once for both); ``rule_base`` for the fuzzy coordinator (else Table
+    2's); ``on_block(n)`` is told of every n scenario-ticks done (for a progress bar). A
+    run's results do not depend on the other scenarios of its batch.
     """
     if not scenarios:
         return []
     if mode is None:
-        modes = {s.mode for s in scenarios}
-        if len(modes) != 1:
-            raise ValueError("scenarios of several modes: give the batch's mode")
-        mode = modes.pop()
+        modes = [scenario.mode for scenario in scenarios]
+    elif isinstance(mode, Mode):
+        modes = [mode] * len(scenarios)
+    else:
+        modes = list(mode)
+        if len(modes) != len(scenarios):
+            raise ValueError(f"{len(modes)} modes for {len(scenarios)} scenarios")
     with np.errstate(all="ignore"):
-        batch = _Batch(scenarios, mode, rule_base)
+        batch = _Batch(scenarios, modes, rule_base)
         stream = MeasureStream(scenarios)
         peak_k_c = np.zeros(batch.count)
         runs: list[BatchRun | None] = [None] * len(scenarios)
         original = np.arange(len(scenarios))
-        names = MeasureStream.COLUMNS
+        names = (*MeasureStream.COLUMNS, "k_c")
         block_start = 0
+        buffers: dict[str, Array] = {}
         while batch.count:
             length = min(BLOCK_TICKS, int(batch.ticks.max()) - block_start)
-            block = {name: np.empty((length, batch.count)) for name in names}
+            if not buffers or buffers["k_c"].shape[1] != batch.count:
+                # One set of buffers per batch size: fresh ones for each block would be tens
+                # of megabytes of new pages to fault in every BLOCK_TICKS ticks.
+                buffers = {name: np.empty((BLOCK_TICKS, batch.count)) for name in names}
+            block = {name: buffers[name][:length] for name in names}
             for offset in range(length):
-                tick = block_start + offset
-                row = batch.step(tick)
+                row = batch.step(block_start + offset)
                 for name in names:
                     block[name][offset] = row[name]
-                peak_k_c = np.where(tick < batch.ticks, _max(peak_k_c, row["k_c"]), peak_k_c)
             ticks = np.arange(block_start, block_start + length)[:, None]
             valid = ticks < batch.ticks
             stream.update(block, valid)
+            peak_k_c = _max(peak_k_c, np.where(valid, block["k_c"], 0.0).max(axis=0))
             if on_block is not None:
                 on_block(int(valid.sum()))
             block_start += length

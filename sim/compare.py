@@ -36,10 +36,14 @@ from sim.generator import generate_scenario_at
 from sim.measures import WAYPOINT_TOLERANCE, Measures
 
 DEFAULT_COUNT = 1000
-DEFAULT_BATCH = 10_000
-"""Most scenarios per batch. A batch costs numpy's per-call overhead (about 2 ms) on every
-tick of its longest run, whatever its size, so fewer, larger batches are faster: by
-default one per mode and worker."""
+DEFAULT_BATCH = 20_000
+"""Most runs per batch (a scenario in one mode is one run). A batch costs numpy's per-call
+overhead on every tick of its longest run, whatever its size, so fewer, larger batches are
+faster: by default one per worker, each with both modes of its scenarios."""
+TICK_OVERHEAD_STEPS = 600
+"""A batch's cost per tick beyond its runs' steps, in scenario-steps: numpy's per-call
+overhead, fitted to the times of a batch of short runs and one of long runs on our
+machines (500 to 760)."""
 ENGAGED_K_C = 0.5
 """A run where k_C reached this has avoided: AO carried at least half of the command."""
 FUZZY_TERMS = {"min_distance": 4, "beta": 4}
@@ -59,10 +63,10 @@ class Variant:
 
 @dataclass(frozen=True, slots=True)
 class Job:
-    """One batch: scenarios (with the variant's gains) in one mode, for one worker."""
+    """One batch: scenarios (with the variant's gains), each in its mode, for one worker."""
 
     variant: str
-    mode: Mode
+    modes: tuple[Mode, ...]
     indices: tuple[int, ...]
     scenarios: tuple[Scenario, ...]
     rule_base: RuleBase | None
@@ -101,39 +105,78 @@ def run_job(job: Job) -> list[Outcome]:
     report: Callable[[int], None] | None = None
     if _progress is not None:
         report = _progress.put
-    runs = simulate_batch(job.scenarios, job.mode, job.rule_base, on_block=report)
+    runs = simulate_batch(job.scenarios, job.modes, job.rule_base, on_block=report)
     return [
-        Outcome(job.variant, job.mode, index, scenario, run)
-        for index, scenario, run in zip(job.indices, job.scenarios, runs, strict=True)
+        Outcome(job.variant, mode, index, scenario, run)
+        for mode, index, scenario, run in zip(
+            job.modes, job.indices, job.scenarios, runs, strict=True
+        )
     ]
 
 
 def plan_jobs(
     scenarios: Sequence[Scenario], variants: Sequence[Variant], batch_size: int, workers: int
 ) -> list[Job]:
-    """Batches of similar durations (little padding), at least one per worker."""
-    order = sorted(range(len(scenarios)), key=lambda i: (scenarios[i].duration, i))
-    modes = sum(len(variant.modes) for variant in variants)
-    per_mode = max(math.ceil(len(scenarios) / batch_size), math.ceil(workers / modes))
-    size = math.ceil(len(scenarios) / per_mode)
+    """Batches of a variant's runs (both modes of a scenario side by side), sorted by
+    duration and cut where the batches' costs come out even: a batch of long runs costs more
+    ticks of overhead, so it gets fewer of them. At least one batch per worker."""
+    per_variant = math.ceil(workers / len(variants))
     jobs = []
     for variant in variants:
         varied = [
             replace(s, controller=replace(s.controller, **variant.controller)) for s in scenarios
         ]
-        for mode in variant.modes:
-            for start in range(0, len(order), size):
-                chosen = order[start : start + size]
-                jobs.append(
-                    Job(
-                        variant.name,
-                        mode,
-                        tuple(chosen),
-                        tuple(varied[i] for i in chosen),
-                        variant.rule_base,
-                    )
+        runs = sorted(
+            ((index, mode) for index in range(len(scenarios)) for mode in variant.modes),
+            key=lambda run: (scenarios[run[0]].duration, run[0], list(Mode).index(run[1])),
+        )
+        ticks = [_run_ticks(scenarios[index]) for index, _ in runs]
+        parts = max(math.ceil(len(runs) / batch_size), per_variant)
+        for chosen in _even_cuts(ticks, parts, batch_size):
+            jobs.append(
+                Job(
+                    variant.name,
+                    tuple(runs[i][1] for i in chosen),
+                    tuple(runs[i][0] for i in chosen),
+                    tuple(varied[runs[i][0]] for i in chosen),
+                    variant.rule_base,
                 )
+            )
     return jobs
+
+
+def _even_cuts(ticks: Sequence[int], parts: int, most: int) -> list[range]:
+    """Cut runs sorted by ``ticks`` into at most ``parts`` consecutive batches of at most
+    ``most`` runs (``parts * most`` being enough), making the largest batch's cost (its
+    ticks of overhead and its runs' steps) as small as it can be: a bisection on that cost,
+    each cut taken greedily."""
+
+    def cut(limit: float) -> list[range] | None:
+        """Batches costing at most ``limit`` each, or None if ``parts`` are not enough."""
+        batches, start, steps = [], 0, 0
+        for end, run_ticks in enumerate(ticks):
+            steps += run_ticks
+            if end > start and (
+                run_ticks * TICK_OVERHEAD_STEPS + steps > limit or end - start == most
+            ):
+                batches.append(range(start, end))
+                start, steps = end, run_ticks
+            if run_ticks * TICK_OVERHEAD_STEPS + steps > limit or len(batches) == parts:
+                return None
+        return [*batches, range(start, len(ticks))]
+
+    low, high = 0.0, float(max(ticks, default=0) * TICK_OVERHEAD_STEPS + sum(ticks))
+    best = cut(high)
+    while best is not None and high - low > 1e-4 * high:
+        middle = (low + high) / 2.0
+        found = cut(middle)
+        if found is None:
+            low = middle
+        else:
+            best, high = found, middle
+    if best is None:
+        raise ValueError(f"{len(ticks)} runs do not fit {parts} batches of {most}")
+    return best
 
 
 class Processes:
@@ -469,7 +512,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--batch",
         type=int,
         default=DEFAULT_BATCH,
-        help=f"most scenarios per batch (default {DEFAULT_BATCH})",
+        help=f"most runs per batch, a scenario in one mode being one run (default {DEFAULT_BATCH})",
     )
     parser.add_argument(
         "--scheduler",

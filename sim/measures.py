@@ -110,7 +110,6 @@ class MeasureStream:
     """
 
     COLUMNS = (
-        "t",
         "clock",
         "theta1",
         "theta2",
@@ -164,13 +163,18 @@ class MeasureStream:
         self._completion = np.full(count, math.nan)
         self._stops = np.zeros(count, dtype=np.int64)
         self._slow_run = np.zeros(count, dtype=np.int64)
-        self._tail_velocity = np.zeros((0, count, 3))
+        self._tail_velocity = np.zeros((0, 3, count))
         self._tail_clock = np.zeros((0, count))
-        self._tail_position = np.zeros((0, count, 3))
-        self._tail_command = np.zeros((0, count, 2))
+        self._tail_position = np.zeros((0, 3, count))
+        self._tail_command = np.zeros((0, 2, count))
 
     def update(self, columns: Mapping[str, Array], valid: Mask) -> None:
-        """Fold in one block: each column (ticks, runs); ``valid`` (ticks, runs)."""
+        """Fold in one block: each column (ticks, runs); ``valid`` (ticks, runs).
+
+        Vectors are held as (ticks, component, runs) and their lengths written out
+        component by component: the same sums as a norm over a last axis of 3, without
+        numpy's slow reductions along so short an axis (a batch's blocks are millions of
+        elements)."""
         progress, clock = columns["progress"], columns["clock"]
         vx, vy = tcp_velocity(
             self.robot,
@@ -180,9 +184,9 @@ class MeasureStream:
             columns["theta2_rate"],
             np,
         )
-        velocity = np.stack([vx, vy, -columns["d3_rate"]], axis=-1)
-        position = np.stack([columns["x"], columns["y"], columns["z"]], axis=-1)
-        command = np.stack([columns["command_theta1"], columns["command_theta2"]], axis=-1)
+        velocity = np.stack([vx, vy, -columns["d3_rate"]], axis=1)
+        position = np.stack([columns["x"], columns["y"], columns["z"]], axis=1)
+        command = np.stack([columns["command_theta1"], columns["command_theta2"]], axis=1)
 
         clearance = np.where(valid, columns["clearance"], math.inf)
         self._min_clearance = np.minimum(self._min_clearance, clearance.min(axis=0))
@@ -198,11 +202,12 @@ class MeasureStream:
         )
         self._fold_stops(watched & (speed < self._threshold) & valid)
 
-        distance = np.linalg.norm(position[:, :, None, :] - self._waypoints[None], axis=-1)
-        self._misses = np.minimum(
-            self._misses, np.where(valid[:, :, None], distance, math.inf).min(axis=0)
-        )
-        to_last = distance[:, self._rows, self._last]
+        for index in range(self._waypoints.shape[1]):
+            distance = _length(position - self._waypoints[:, index].T)
+            self._misses[:, index] = np.minimum(
+                self._misses[:, index], np.where(valid, distance, math.inf).min(axis=0)
+            )
+        to_last = _length(position - self._waypoints[self._rows, self._last].T)
         done = (to_last <= WAYPOINT_TOLERANCE) & (progress >= self._before_last) & valid
         found = np.isnan(self._completion) & done.any(axis=0)
         if found.any():
@@ -213,9 +218,10 @@ class MeasureStream:
         position = np.concatenate([self._tail_position, position])
         counted = valid[len(valid) - len(command) + 1 :]
         if len(command) > 1:
-            jump = np.abs(np.diff(command, axis=0)).max(axis=-1)
+            jump = np.abs(np.diff(command, axis=0))
+            jump = np.maximum(jump[:, 0], jump[:, 1])
             self._jump = np.maximum(self._jump, np.where(counted, jump, 0.0).max(axis=0))
-            step = np.linalg.norm(np.diff(position, axis=0), axis=-1)
+            step = _length(np.diff(position, axis=0))
             self._length += _running_sum(np.where(counted, step, 0.0))
         self._tail_command, self._tail_position = command[-1:], position[-1:]
 
@@ -234,9 +240,10 @@ class MeasureStream:
         if len(series) >= JERK_WINDOW:
             count = len(series) - JERK_WINDOW + 1
             fitted = self._weights[0] * series[:count]
+            term = np.empty_like(fitted)
             for lag in range(1, JERK_WINDOW):
-                fitted = fitted + self._weights[lag] * series[lag : lag + count]
-            jerk = np.linalg.norm(fitted, axis=-1)
+                fitted += np.multiply(self._weights[lag], series[lag : lag + count], out=term)
+            jerk = _length(fitted)
             gaps = np.diff(clocks, axis=0) > 1.5 * self.period
             spans_gap = np.lib.stride_tricks.sliding_window_view(gaps, JERK_WINDOW - 1, axis=0)
             counted = valid[len(valid) - count :] & ~spans_gap.any(axis=-1)
@@ -283,7 +290,7 @@ class MeasureStream:
         for name in self.BY_ROW:
             setattr(self, name, getattr(self, name)[rows])
         for name in self.BY_COLUMN:
-            setattr(self, name, getattr(self, name)[:, rows])
+            setattr(self, name, getattr(self, name)[..., rows])
         self._counts = [self._counts[row] for row in rows]
         self._rows = np.arange(len(rows))
 
@@ -313,10 +320,19 @@ def _running_sum(values: Array) -> Array:
     return np.asarray(np.cumsum(values, axis=0)[-1])
 
 
+def _length(vectors: Array) -> Array:
+    """The lengths of (ticks, 3, runs) vectors, summed as a norm over the components."""
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    return np.asarray(np.sqrt(x * x + y * y + z * z))
+
+
 def near_any(values: np.ndarray, marks: np.ndarray, margin: float) -> np.ndarray:
     """Which ``values`` lie within ``margin`` of one of ``marks`` (along the last axis of
     ``marks``, which may hold one row of marks per column of ``values``; NaN marks none)."""
-    return np.asarray(np.any(np.abs(values[..., None] - marks) <= margin, axis=-1))
+    near = np.zeros(np.broadcast_shapes(values.shape, marks.shape[:-1]), dtype=bool)
+    for mark in np.moveaxis(marks, -1, 0):
+        near |= np.abs(values - mark) <= margin
+    return near
 
 
 def format_table(results: dict[str, Measures]) -> str:

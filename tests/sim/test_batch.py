@@ -123,6 +123,21 @@ def test_a_run_does_not_depend_on_the_rest_of_its_batch(study: list[Scenario]) -
     assert together[0] == alone[0]
 
 
+def test_a_batch_of_both_modes_gives_each_runs_own_measures(study: list[Scenario]) -> None:
+    short = sorted(study, key=lambda scenario: scenario.duration)[:3]
+    modes = [Mode.FUZZY, Mode.CONVENTIONAL, Mode.FUZZY, Mode.CONVENTIONAL, Mode.CONVENTIONAL]
+    chosen = [short[0], short[0], short[1], short[1], short[2]]
+    mixed = simulate_batch(chosen, modes)
+    own = [scenario.with_mode(mode) for scenario, mode in zip(chosen, modes, strict=True)]
+    assert simulate_batch(own) == mixed
+    fuzzy = simulate_batch(short[:2], Mode.FUZZY)
+    conventional = simulate_batch(short, Mode.CONVENTIONAL)
+    assert mixed == [fuzzy[0], conventional[0], fuzzy[1], conventional[1], conventional[2]]
+    assert mixed[0] != mixed[1]  # the modes differ on this scenario, so the test can fail
+    with pytest.raises(ValueError, match="2 modes for 3 scenarios"):
+        simulate_batch(short, [Mode.FUZZY, Mode.FUZZY])
+
+
 def test_measures_fed_in_blocks_equal_those_of_the_whole_log() -> None:
     run = simulate(load_scenario("reference"), Mode.CONVENTIONAL)
     results = []
@@ -132,7 +147,7 @@ def test_measures_fed_in_blocks_equal_those_of_the_whole_log() -> None:
             columns = {
                 name: run.log[name][start : start + block, None] for name in MeasureStream.COLUMNS
             }
-            stream.update(columns, np.ones((len(columns["t"]), 1), dtype=bool))
+            stream.update(columns, np.ones((len(columns["clock"]), 1), dtype=bool))
         results.append(stream.measures()[0])
     for result in results:
         assert_same(result, run.measures, f"blocks of {block}")
@@ -146,7 +161,7 @@ def test_ticks_past_a_runs_end_are_not_counted() -> None:
     extended = {
         name: np.concatenate([values, values[-200:] * 3.0]) for name, values in columns.items()
     }
-    valid = np.arange(len(extended["t"]))[:, None] < len(run.log)
+    valid = np.arange(len(extended["clock"]))[:, None] < len(run.log)
     stream.update(extended, valid)
     assert_same(stream.measures()[0], run.measures, "extended")
 
@@ -192,8 +207,6 @@ def test_a_batch_shares_its_configuration() -> None:
     other = replace(scenario, controller=replace(scenario.controller, sensing_range=0.1))
     with pytest.raises(ValueError, match="shares"):
         simulate_batch([scenario, other], Mode.FUZZY)
-    with pytest.raises(ValueError, match="mode"):
-        simulate_batch([scenario, scenario.with_mode(Mode.CONVENTIONAL)])
 
 
 def test_fuzzy_inference_and_ellipse_distance_are_those_of_the_scalar_code() -> None:

@@ -18,7 +18,8 @@ import pytest
 from controller.fuzzy import RuleBase
 from protocol.errors import ConfigError
 from protocol.scenario import Mode
-from sim.compare import main, parse_sweep
+from sim.compare import TICK_OVERHEAD_STEPS, Job, Variant, main, parse_sweep, plan_jobs
+from sim.generator import generate_scenario_at
 
 COUNT = ["-n", "2", "--seed", "9", "-q"]  # two short scenarios (6 and 8 s)
 
@@ -111,6 +112,38 @@ def test_sweeps_make_one_variant_per_value_in_the_modes_they_concern() -> None:
     assert peaks.rule_base.outputs["k_T"].peaks == RuleBase.load().outputs["k_T"].peaks
     with pytest.raises(ConfigError, match="not a number"):
         parse_sweep("switch_distance=far")
+
+
+def test_batches_hold_every_run_once_with_long_runs_in_smaller_batches() -> None:
+    scenarios = [generate_scenario_at(5, index) for index in range(40)]
+    variants = [Variant("baseline", tuple(Mode), {}), *parse_sweep("switch_distance=0.02")]
+    jobs = plan_jobs(scenarios, variants, batch_size=1000, workers=4)
+    runs = [
+        (job.variant, mode, index)
+        for job in jobs
+        for mode, index in zip(job.modes, job.indices, strict=True)
+    ]
+    expected = [("baseline", mode, index) for mode in Mode for index in range(40)]
+    expected += [("switch_distance=0.02", Mode.CONVENTIONAL, index) for index in range(40)]
+    assert sorted(runs, key=str) == sorted(expected, key=str)
+    baseline = [job for job in jobs if job.variant == "baseline"]
+    assert len(baseline) == 2 and all(len(set(job.modes)) == 2 for job in baseline)
+    short, long = sorted(baseline, key=lambda job: max(s.duration for s in job.scenarios))
+    assert max(s.duration for s in short.scenarios) <= min(s.duration for s in long.scenarios)
+    assert len(long.scenarios) < len(short.scenarios)
+
+    def cost(ticks: list[int]) -> int:
+        return max(ticks) * TICK_OVERHEAD_STEPS + sum(ticks)
+
+    def ticks_of(job: Job) -> list[int]:
+        return [round(s.duration / s.controller.period) + 1 for s in job.scenarios]
+
+    everything = sorted(ticks_of(short) + ticks_of(long))
+    best = min(
+        max(cost(everything[:cut]), cost(everything[cut:])) for cut in range(1, len(everything))
+    )
+    assert max(cost(ticks_of(short)), cost(ticks_of(long))) <= best * 1.0001
+    assert all(len(job.scenarios) <= 30 for job in plan_jobs(scenarios, variants[:1], 30, 1))
 
 
 def test_ctrl_c_stops_workers_and_exits_130_without_a_traceback(tmp_path: Path) -> None:
