@@ -128,7 +128,7 @@ def plan_jobs(
         ]
         runs = sorted(
             ((index, mode) for index in range(len(scenarios)) for mode in variant.modes),
-            key=lambda run: (scenarios[run[0]].duration, run[0], list(Mode).index(run[1])),
+            key=lambda run: (scenarios[run[0]].duration, run[0]),
         )
         ticks = [_run_ticks(scenarios[index]) for index, _ in runs]
         parts = max(math.ceil(len(runs) / batch_size), per_variant)

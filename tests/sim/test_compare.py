@@ -18,7 +18,15 @@ import pytest
 from controller.fuzzy import RuleBase
 from protocol.errors import ConfigError
 from protocol.scenario import Mode
-from sim.compare import TICK_OVERHEAD_STEPS, Job, Variant, main, parse_sweep, plan_jobs
+from sim.compare import (
+    TICK_OVERHEAD_STEPS,
+    Job,
+    Variant,
+    _run_ticks,
+    main,
+    parse_sweep,
+    plan_jobs,
+)
 from sim.generator import generate_scenario_at
 
 COUNT = ["-n", "2", "--seed", "9", "-q"]  # two short scenarios (6 and 8 s)
@@ -136,7 +144,7 @@ def test_batches_hold_every_run_once_with_long_runs_in_smaller_batches() -> None
         return max(ticks) * TICK_OVERHEAD_STEPS + sum(ticks)
 
     def ticks_of(job: Job) -> list[int]:
-        return [round(s.duration / s.controller.period) + 1 for s in job.scenarios]
+        return [_run_ticks(scenario) for scenario in job.scenarios]
 
     everything = sorted(ticks_of(short) + ticks_of(long))
     best = min(
