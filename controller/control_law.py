@@ -172,8 +172,9 @@ class ControlLaw:
             (k_t * tracking.omega + k_c * avoiding.omega) / total,
         )
 
-        vx = blended.v * math.cos(self.heading)
-        vy = blended.v * math.sin(self.heading)
+        vx, vy = self._approach_limited(
+            blended.v * math.cos(self.heading), blended.v * math.sin(self.heading), measurement, tcp
+        )
         vx += pull * (config.position_gain * (waited[0] - tcp[0]) - vx)
         vy += pull * (config.position_gain * (waited[1] - tcp[1]) - vy)
         vz = reference_velocity[2] + config.height_gain * (
@@ -366,6 +367,38 @@ class ControlLaw:
         return avoid_obstacle(
             self.config, self._aim, measurement, self.side, self.heading, position
         )
+
+    def _approach_limited(
+        self, vx: float, vy: float, measurement: ObstacleMeasurement, tcp: Point3
+    ) -> tuple[float, float]:
+        """The TCP's planar velocity without what moves it towards the obstacle's margin faster
+        than ``approach_rate`` times its clearance (or at all, once inside the margin); motion
+        along the obstacle is kept.
+
+        Eq. 30 blends turn rates as well as speeds: where PT and AO pull the heading opposite
+        ways (the reference behind the arm, AO turning to its edge), the heading turns slowly
+        while both speeds carry the arm on, AO's at least ``ao_speed_min``, and the heading
+        can sweep across the obstacle (``gen-1-987``, ``gen-0-5173``: 1 to 4 mm into the
+        margin). With the approach cut so, the clearance falls at most exponentially and does
+        not reach zero; the arm slides along the margin until the heading has turned. Cutting
+        the speed along the heading instead stalled the arm against the margin where the two
+        turn rates cancelled (``gen-1-553``). Both modes have it: it is a limit on the output,
+        like the joint limits, not part of the blend.
+        """
+        if not measurement.present or self.obstacle is None:
+            return vx, vy
+        clearance, nearest = self.obstacle.nearest_point(tcp[0], tcp[1])
+        nx, ny = nearest[0] - tcp[0], nearest[1] - tcp[1]
+        gap = length(nx, ny)
+        if gap == 0.0:
+            return vx, vy
+        if clearance < 0.0:
+            nx, ny = -nx, -ny
+        nx, ny = nx / gap, ny / gap
+        excess = vx * nx + vy * ny - self.config.approach_rate * max(clearance, 0.0)
+        if excess > 0.0:
+            return vx - excess * nx, vy - excess * ny
+        return vx, vy
 
     def _limit(self, wanted: tuple[float, float, float]) -> tuple[tuple[float, float, float], bool]:
         """Joint speed, then acceleration limits, each by one common scale factor.

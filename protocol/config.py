@@ -120,7 +120,9 @@ class ControllerConfig:
     AO is the paper's eq. 28-29 with
     ``f_vA(s) = ao_speed_min + (ao_speed_max - ao_speed_min) tanh(max(s, 0) / ao_speed_distance)``
     and ``f_omegaA(s) = ao_turn_max tanh(s / ao_turn_scale)``, steering at the edge of the
-    obstacle grown by ``ao_pass_margin``.
+    obstacle grown by ``ao_pass_margin``. Whatever the blend, the TCP never moves towards the
+    obstacle's margin faster than ``approach_rate`` times its clearance (see
+    ``ControlLaw._approach_limited``).
     """
 
     rate_hz: float = 500.0
@@ -137,6 +139,7 @@ class ControllerConfig:
     sensing_range: float = 0.2
     switch_distance: float = 0.05
     damping: float = 0.01
+    approach_rate: float = 5.0
 
     def __post_init__(self) -> None:
         for spec in fields(self):
@@ -152,7 +155,13 @@ class ControllerConfig:
             )
         if self.ao_speed_min > self.ao_speed_max:
             raise ConfigError("controller.ao_speed_min", "must not exceed ao_speed_max")
-        for name in ("ao_speed_distance", "ao_turn_scale", "sensing_range", "position_gain"):
+        for name in (
+            "ao_speed_distance",
+            "ao_turn_scale",
+            "sensing_range",
+            "position_gain",
+            "approach_rate",
+        ):
             if getattr(self, name) <= 0.0:
                 raise ConfigError(f"controller.{name}", "must be positive")
 

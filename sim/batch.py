@@ -96,8 +96,9 @@ def _tanh(x: Array) -> Array:
     return np.fromiter(map(math.tanh, x.tolist()), np.float64, len(x))
 
 
-_Measurement = tuple[Mask, Array, Array, Array, Array, Array, Array]
-"""DM's present, clearance, d_L, d_R, beta, ahead, toward."""
+_Measurement = tuple[Mask, Array, Array, Array, Array, Array, Array, Array, Array]
+"""DM's present, clearance, d_L, d_R, beta, ahead, toward, and the way from the TCP to the
+nearest point of the section (x, y)."""
 
 
 def _norm3(difference: Array) -> Array:
@@ -237,9 +238,10 @@ def _measure(
     goal_y: Array,
     heading_cos: Array,
     heading_sin: Array,
-) -> tuple[Mask, Array, Array, Array, Array, Array, Array]:
+) -> _Measurement:
     """controller.obstacle.measure below the obstacle's top: present (within the sensing
-    range), clearance, d_L, d_R, beta, ahead, toward (meaningful where present)."""
+    range), clearance, d_L, d_R, beta, ahead, toward, and the way to the nearest point
+    (meaningful where present)."""
     lx, ly = obstacle.to_local(px, py)
     clearance, nearest_x, nearest_y = obstacle.nearest_point(lx, ly)
     present = ~(clearance >= sensing_range)
@@ -279,7 +281,7 @@ def _measure(
     beta = _min(np.abs(left), np.abs(right))
     beta = np.where((left > 0.0) & (right < 0.0), -beta, beta)
     beta = np.where(outside, beta, -math.pi / 2.0)
-    return present, clearance, d_left, d_right, beta, ahead, toward
+    return present, clearance, d_left, d_right, beta, ahead, toward, to_nearest_x, to_nearest_y
 
 
 def _ellipse_distance(a: Array, b: Array, u: Array, v: Array) -> tuple[Array, Array, Array]:
@@ -797,8 +799,9 @@ class _Batch:
         waited = np.where(waited_is_next, plans.point, plans.point_before)
         depth = np.where(waited_is_next, depth_next, depth_before)
         pull = (1.0 - self.rate) * depth
-        vx = blended_v * heading_cos
-        vy = blended_v * heading_sin
+        vx, vy = self._approach_limited(
+            blended_v * heading_cos, blended_v * heading_sin, measurement
+        )
         gain = config.position_gain
         vx = vx + pull * (gain * (waited[0] - px) - vx)
         vy = vy + pull * (gain * (waited[1] - py) - vy)
@@ -909,6 +912,7 @@ class _Batch:
         d_left, d_right = np.full(self.count, sensing_range), np.full(self.count, sensing_range)
         beta, ahead = np.full(self.count, math.pi), np.full(self.count, -1.0)
         toward = np.full(self.count, -1.0)
+        to_nearest_x, to_nearest_y = np.zeros(self.count), np.zeros(self.count)
         if len(rows):
             found = _measure(
                 obstacle.take(rows),
@@ -922,13 +926,23 @@ class _Batch:
             )
             present[rows] = found[0]
             for array, values, nothing in zip(
-                (clearance, d_left, d_right, beta, ahead, toward),
+                (clearance, d_left, d_right, beta, ahead, toward, to_nearest_x, to_nearest_y),
                 found[1:],
-                (math.inf, sensing_range, sensing_range, math.pi, -1.0, -1.0),
+                (math.inf, sensing_range, sensing_range, math.pi, -1.0, -1.0, 0.0, 0.0),
                 strict=True,
             ):
                 array[rows] = np.where(found[0], values, nothing)
-        return present, clearance, d_left, d_right, beta, ahead, toward
+        return (
+            present,
+            clearance,
+            d_left,
+            d_right,
+            beta,
+            ahead,
+            toward,
+            to_nearest_x,
+            to_nearest_y,
+        )
 
     def _plan_tracking(
         self,
@@ -976,7 +990,7 @@ class _Batch:
         py: Array,
     ) -> tuple[Array, Array]:
         """AO with its TL/TR choice (ControlLaw._avoid, behaviours.avoid_obstacle)."""
-        present, clearance, d_left, d_right, _, ahead, toward = measurement
+        present, clearance, d_left, d_right, _, ahead, toward, _, _ = measurement
         engaged = present & ~((_max(ahead, toward) <= AHEAD_NONE) & (clearance > 0.0))
         chosen = np.where(d_left >= d_right, float(TURN_LEFT), float(TURN_RIGHT))
         self.side = np.where(engaged, np.where(self.side == 0.0, chosen, self.side), 0.0)
@@ -1024,7 +1038,7 @@ class _Batch:
         self, measurement: _Measurement, min_distance: Array, at_waypoint: Array
     ) -> tuple[Array, Array]:
         """k_T and k_C of each scenario's coordinator (controller.coordination)."""
-        present, clearance, _, _, beta, ahead, toward = measurement
+        present, clearance, _, _, beta, ahead, toward, _, _ = measurement
         fuzzy_rows = self.fuzzy_rows
         k_t = np.full(self.count, self.k_t_without_obstacle)
         k_c = np.zeros(self.count)
@@ -1050,6 +1064,36 @@ class _Batch:
             k_t[rows] = fuzzy_t
             k_c[rows] = fuzzy_c * relevance * (1.0 - at_waypoint[rows])
         return k_t, k_c
+
+    def _approach_limited(
+        self, vx: Array, vy: Array, measurement: _Measurement
+    ) -> tuple[Array, Array]:
+        """ControlLaw._approach_limited: towards the obstacle's margin no faster than
+        approach_rate times the clearance."""
+        present, clearance, to_x, to_y = (
+            measurement[0],
+            measurement[1],
+            measurement[7],
+            measurement[8],
+        )
+        gap = _norm2(to_x, to_y)
+        rows = np.flatnonzero(present & (gap > 0.0))
+        if not len(rows):
+            return vx, vy
+        inside = clearance[rows] < 0.0
+        normal_x = np.where(inside, -to_x[rows], to_x[rows]) / gap[rows]
+        normal_y = np.where(inside, -to_y[rows], to_y[rows]) / gap[rows]
+        some_x, some_y = vx[rows], vy[rows]
+        excess = (
+            some_x * normal_x
+            + some_y * normal_y
+            - self.config.approach_rate * _max(clearance[rows], 0.0)
+        )
+        cut = excess > 0.0
+        vx, vy = vx.copy(), vy.copy()
+        vx[rows] = np.where(cut, some_x - excess * normal_x, some_x)
+        vy[rows] = np.where(cut, some_y - excess * normal_y, some_y)
+        return vx, vy
 
     def _joint_rates(
         self,

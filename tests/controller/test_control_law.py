@@ -128,3 +128,33 @@ def test_the_plan_stands_still_while_the_node_holds() -> None:
     held = law.progress
     law.step(199 * scenario.controller.period, joints)  # a hold: the plan's clock stopped
     assert law.progress == held
+
+
+@pytest.mark.parametrize("clearance", [0.004, 0.0005, -0.003])
+def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
+    clearance: float,
+) -> None:
+    scenario = load_scenario("reference")
+    law = ControlLaw.for_scenario(scenario)
+    obstacle = scenario.obstacle
+    assert obstacle is not None
+    out_x, out_y = math.cos(obstacle.yaw), math.sin(obstacle.yaw)  # outward, off the long end
+    reach = obstacle.semi_axes[0] + clearance
+    tcp = (obstacle.x + reach * out_x, obstacle.y + reach * out_y, obstacle.height / 2.0)
+    measurement = measure(obstacle, tcp, (0.0, 0.0), CONFIG.sensing_range, math.pi)
+    assert measurement.clearance == pytest.approx(clearance)
+    allowed = CONFIG.approach_rate * max(clearance, 0.0)
+    along_x, along_y = -out_y, out_x
+    for inward, along in ((0.1, 0.0), (0.1, 0.05), (0.1, -0.2), (-0.1, 0.05), (0.0, 0.1)):
+        vx = -inward * out_x + along * along_x
+        vy = -inward * out_y + along * along_y
+        limited_x, limited_y = law._approach_limited(vx, vy, measurement, tcp)
+        # Towards the obstacle at most `allowed`, along it as asked; away from it as asked.
+        assert -(limited_x * out_x + limited_y * out_y) == pytest.approx(min(inward, allowed))
+        assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
+
+
+def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
+    law = ControlLaw.for_scenario(load_scenario("reference"))
+    far = measure(None, (0.3, 0.0, 0.2), (0.5, 0.0), CONFIG.sensing_range)
+    assert law._approach_limited(0.1, -0.2, far, (0.3, 0.0, 0.2)) == (0.1, -0.2)

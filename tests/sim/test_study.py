@@ -67,6 +67,12 @@ HARD_CASES = [
         (2026, 836, "missed by 2.4 mm: the reference stood past the waypoint it waited for"),
         (2026, 840, "never finished: AO circled an obstacle beyond the last waypoint"),
         (2026, 934, "stopped, and missed by 2.1 mm"),
+        # Before the approach limit (ControlLaw._approach_limited); found on 10,000 of seed 0.
+        (0, 5173, "collided 1.0 mm: PT's and AO's turn rates cancelled, heading at the obstacle"),
+        (0, 5547, "collided: the same, at a doorstep"),
+        (0, 7252, "collided 3.9 mm: the same"),
+        (0, 8422, "collided 3.9 mm: the same"),
+        (0, 8999, "collided: the same, near the boundary"),
     )
 ]
 
@@ -82,3 +88,13 @@ def test_fuzzy_holds_on_the_scenarios_it_once_failed(seed: int, index: int) -> N
     assert measures.stops == 0
     assert measures.max_waypoint_miss <= WAYPOINT_TOLERANCE
     assert not math.isnan(measures.completion_time)
+
+
+def test_fuzzy_keeps_out_of_the_margin_where_turn_rates_cancel_and_the_detour_is_long() -> None:
+    """gen-1-987 went 2.0 mm into the margin; with the approach limit it slides along it and
+    goes round, but the detour outlasts the run's settling time: the last waypoint is still
+    missed (the README lists it)."""
+    measures = simulate(generate_scenario_at(1, 987, Mode.FUZZY)).measures
+    assert measures.collision_free, measures.min_clearance
+    assert measures.min_clearance > 0.0
+    assert measures.stops == 0
