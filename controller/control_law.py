@@ -266,11 +266,18 @@ class ControlLaw:
         return max(index - 1, min(self.reached + 1, index))
 
     def _mark_reached(self, index: int, tcp: Point3) -> None:
-        """Note when the TCP passes waypoint ``index - 1`` or ``index`` (within PASSED)."""
+        """Note when the TCP passes waypoint ``index - 1`` or ``index`` (within PASSED).
+
+        AO then forgets its TL/TR choice, made on the way to that waypoint, and chooses afresh
+        on the way to the next: held for the whole run, a choice made on the first segment
+        took the arm the long way round an obstacle it met again on a later one, past the
+        run's settling time (``gen-0-1312``, ``gen-1-987``).
+        """
         points = self.trajectory.points
         for candidate in (index - 1, index):
             if candidate > self.reached and distance(tcp, points[candidate]) <= PASSED:
                 self.reached = candidate
+                self.side = 0
 
     def _behind(self, index: int, tcp: Point3, reference: tuple[float, ...]) -> float:
         """How far the TCP is off the way from the reference to waypoint ``index`` in the plane

@@ -833,12 +833,14 @@ class _Batch:
         }
 
     def _behind(self, tcp: Array, reference: Array) -> tuple[Array, Array]:
-        """ControlLaw._mark_reached, then _behind of p_j and _away of p_j-1."""
+        """ControlLaw._mark_reached (AO forgets its side where a waypoint is passed), then
+        _behind of p_j and _away of p_j-1."""
         plans = self.plans
         index = plans.index
         for candidate, point in ((index - 1, plans.point_before), (index, plans.point)):
             passed = (candidate > self.reached) & (_norm3(tcp - point) <= PASSED)
             self.reached = np.where(passed, candidate, self.reached)
+            self.side = np.where(passed, 0.0, self.side)
         x, y = plans.point[0], plans.point[1]
         behind = 0.5 * (
             _norm2(tcp[0] - x, tcp[1] - y)
