@@ -80,6 +80,11 @@ HARD_CASES = [
         (0, 5511, "never finished: the plan waited 3.3 s for the long way round"),
         (0, 5734, "never finished: the plan waited 3.6 s for the long way round"),
         (0, 8459, "never finished: circled the obstacle to a last waypoint at its doorstep"),
+        # Before PASSED was 1.9 mm (1.5): passed 1.6 to 1.8 mm off, slid back, stopped.
+        (1, 488, "stopped: passed 1.8 mm off near the stretched arm, slid back"),
+        (2026, 271, "stopped: passed 1.6 mm off (1.7 mm below) near the stretched arm"),
+        (0, 2425, "stopped: passed 1.6 mm off at a doorstep, slid back"),
+        (0, 4672, "stopped: passed 3.8 mm off, ahead of the plan, slid back and turned"),
     )
 ]
 
@@ -87,7 +92,7 @@ HARD_CASES = [
 @pytest.mark.parametrize(("seed", "index"), HARD_CASES)
 def test_fuzzy_holds_on_the_scenarios_it_once_failed(seed: int, index: int) -> None:
     """Each failed a must-hold before one of the changes of docs/study.md (the final
-    approach, the last segment's clear way, the approach limit, AO's side chosen afresh):
+    approach, the last segment's clear way, the approach limit, AO's side chosen afresh, PASSED):
     all are reachable, 20 mm clear of the inflated obstacle."""
     scenario = generate_scenario_at(seed, index, Mode.FUZZY)
     assert waypoints_clear(scenario)
