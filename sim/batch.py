@@ -9,8 +9,8 @@ other way and the runs part; hence only ufuncs that agree with :mod:`math` bit f
 ``exp``, to one ulp: numpy's own AVX-512 code for those, on a CPU that has it, is one ulp off
 libm's in a few per cent of values, too rarely next to a rounding edge of the wire to part a
 run (``tests/sim/test_batch.py`` checks both, and the measures of sampled runs to 1e-9).
-``math.tanh`` itself where it is needed (numpy's differs in the last bit), and
-ties of ``min``/``max`` broken as Python does (:func:`_min`).
+``math.tanh`` itself where it is needed (numpy's differs in the last bit), and ties of
+``min``/``max`` broken as Python does (:func:`_min`).
 A branch becomes a mask: both sides are computed and one is kept, or the rare side is computed
 on the few scenarios that take it.
 
@@ -1072,12 +1072,7 @@ class _Batch:
     ) -> tuple[Array, Array]:
         """ControlLaw._approach_limited: towards the obstacle's margin no faster than
         approach_rate times the clearance."""
-        present, clearance, to_x, to_y = (
-            measurement[0],
-            measurement[1],
-            measurement[7],
-            measurement[8],
-        )
+        present, clearance, *_, to_x, to_y = measurement
         gap = _norm2(to_x, to_y)
         rows = np.flatnonzero(present & (gap > 0.0))
         if not len(rows):
@@ -1085,16 +1080,16 @@ class _Batch:
         inside = clearance[rows] < 0.0
         normal_x = np.where(inside, -to_x[rows], to_x[rows]) / gap[rows]
         normal_y = np.where(inside, -to_y[rows], to_y[rows]) / gap[rows]
-        some_x, some_y = vx[rows], vy[rows]
+        near_x, near_y = vx[rows], vy[rows]
         excess = (
-            some_x * normal_x
-            + some_y * normal_y
+            near_x * normal_x
+            + near_y * normal_y
             - self.config.approach_rate * _max(clearance[rows], 0.0)
         )
         cut = excess > 0.0
         vx, vy = vx.copy(), vy.copy()
-        vx[rows] = np.where(cut, some_x - excess * normal_x, some_x)
-        vy[rows] = np.where(cut, some_y - excess * normal_y, some_y)
+        vx[rows] = np.where(cut, near_x - excess * normal_x, near_x)
+        vy[rows] = np.where(cut, near_y - excess * normal_y, near_y)
         return vx, vy
 
     def _joint_rates(

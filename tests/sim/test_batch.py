@@ -26,6 +26,7 @@ from sim.batch import (
     _Sections,
     simulate_batch,
 )
+from sim.generator import generate_scenario_at
 from sim.measures import Measures, MeasureStream, compute_measures
 from sim.simulation import simulate
 
@@ -114,6 +115,27 @@ def test_batch_equals_scalar_simulation_on_sampled_scenarios(
         run = simulate(study[index], mode)
         assert_same(batch[index].measures, run.measures, study[index].name)
         assert batch[index].peak_k_c == pytest.approx(run.log["k_c"].max(), rel=TOLERANCE)
+
+
+def test_batch_equals_scalar_where_the_approach_limit_and_a_fresh_side_act() -> None:
+    """gen-1-987 and gen-0-1312 went the long way round before AO chose its side afresh at
+    each waypoint (tests/sim/test_study.py); in gen-0-28 and gen-0-30 the conventional mode
+    collides without the approach limit."""
+    chosen = [generate_scenario_at(seed, index) for seed, index in ((1, 987), (0, 1312))]
+    chosen += [generate_scenario_at(0, index) for index in (28, 30)]
+    modes = [Mode.FUZZY] * 4 + [Mode.CONVENTIONAL] * 4
+    batch = simulate_batch(chosen * 2, modes)
+    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
+        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    # The limit acts there: all but off (it still holds at the margin), both collide.
+    loose = [
+        replace(scenario, controller=replace(scenario.controller, approach_rate=1e6))
+        for scenario in chosen[2:]
+    ]
+    assert not any(
+        result.measures.collision_free for result in simulate_batch(loose, Mode.CONVENTIONAL)
+    )
+    assert all(result.measures.collision_free for result in batch[6:])
 
 
 def test_a_run_does_not_depend_on_the_rest_of_its_batch(study: list[Scenario]) -> None:
