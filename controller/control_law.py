@@ -176,7 +176,7 @@ class ControlLaw:
         )
 
         vx, vy = self._approach_limited(
-            blended.v * math.cos(self.heading), blended.v * math.sin(self.heading), measurement, tcp
+            blended.v * math.cos(self.heading), blended.v * math.sin(self.heading), measurement
         )
         vx += pull * (config.position_gain * (waited[0] - tcp[0]) - vx)
         vy += pull * (config.position_gain * (waited[1] - tcp[1]) - vy)
@@ -379,7 +379,7 @@ class ControlLaw:
         )
 
     def _approach_limited(
-        self, vx: float, vy: float, measurement: ObstacleMeasurement, tcp: Point3
+        self, vx: float, vy: float, measurement: ObstacleMeasurement
     ) -> tuple[float, float]:
         """The TCP's planar velocity without what moves it towards the obstacle's margin faster
         than ``approach_rate`` times its clearance (or at all, once inside the margin); motion
@@ -395,10 +395,10 @@ class ControlLaw:
         turn rates cancelled (``gen-1-553``). Both modes have it: it is a limit on the output,
         like the joint limits, not part of the blend.
         """
-        if not measurement.present or self.obstacle is None:
+        if not measurement.present:
             return vx, vy
-        clearance, nearest = self.obstacle.nearest_point(tcp[0], tcp[1])
-        nx, ny = nearest[0] - tcp[0], nearest[1] - tcp[1]
+        clearance = measurement.clearance
+        nx, ny = measurement.to_nearest
         gap = length(nx, ny)
         if gap == 0.0:
             return vx, vy

@@ -23,7 +23,9 @@ What DM reports, seen from the tool centre point (TCP) looking towards the next 
 - ``toward``: the same cosine for the direction the TCP moves in (its ``heading``; -1 when
   none is given). An obstacle the TCP moves towards matters even when p_j lies elsewhere:
   PT follows a plan that may pass through the obstacle, and an arm that went round it on
-  the far side of the plan is steered back through it.
+  the far side of the plan is steered back through it;
+- ``to_nearest``: the way from the TCP to the nearest point of the inflated section (for the
+  control law's approach limit).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ class ObstacleMeasurement:
     blocked: bool
     ahead: float
     toward: float = -1.0
+    to_nearest: tuple[float, float] = (0.0, 0.0)
 
     @property
     def min_distance(self) -> float:
@@ -116,4 +119,6 @@ def measure(
         beta = min(abs(left), abs(right))
         if left > 0.0 > right:
             beta = -beta
-    return ObstacleMeasurement(True, clearance, d_left, d_right, beta, blocked, ahead, toward)
+    return ObstacleMeasurement(
+        True, clearance, d_left, d_right, beta, blocked, ahead, toward, to_nearest
+    )

@@ -148,7 +148,7 @@ def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
     for inward, along in ((0.1, 0.0), (0.1, 0.05), (0.1, -0.2), (-0.1, 0.05), (0.0, 0.1)):
         vx = -inward * out_x + along * along_x
         vy = -inward * out_y + along * along_y
-        limited_x, limited_y = law._approach_limited(vx, vy, measurement, tcp)
+        limited_x, limited_y = law._approach_limited(vx, vy, measurement)
         # Towards the obstacle at most `allowed`, along it as asked; away from it as asked.
         assert -(limited_x * out_x + limited_y * out_y) == pytest.approx(min(inward, allowed))
         assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
@@ -157,4 +157,4 @@ def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
     law = ControlLaw.for_scenario(load_scenario("reference"))
     far = measure(None, (0.3, 0.0, 0.2), (0.5, 0.0), CONFIG.sensing_range)
-    assert law._approach_limited(0.1, -0.2, far, (0.3, 0.0, 0.2)) == (0.1, -0.2)
+    assert law._approach_limited(0.1, -0.2, far) == (0.1, -0.2)
