@@ -388,10 +388,10 @@ class ControlLaw:
         Eq. 30 blends turn rates as well as speeds: where PT and AO pull the heading opposite
         ways, the heading turns slowly while both speeds carry the arm on, AO's at least
         ``ao_speed_min``, and the heading can sweep across the obstacle (``gen-0-5173``: 1 mm
-        into the margin, with AO on a side chosen for an earlier segment). Since AO chooses
-        afresh at each waypoint (:meth:`_mark_reached`) the fuzzy mode needs the limit on no
-        generated scenario we ran; it is its safety net, and it is what keeps the hard switch
-        out of the margin. With the approach cut so, the clearance falls at most
+        into the margin). Since AO chooses afresh at each waypoint (:meth:`_mark_reached`) the
+        fuzzy mode did not collide with the limit all but off on the 11,000 generated scenarios
+        tried (seed 1, and 10,000 of seed 0): it is its safety net, and it is what keeps the
+        hard switch out of the margin. With the approach cut so, the clearance falls at most
         exponentially; the arm slides along the margin until the heading has turned. Cutting
         the speed along the heading instead stalled the arm against the margin where the two
         turn rates cancelled (``gen-1-553``). Both modes have it: it is a limit on the output,
