@@ -122,7 +122,8 @@ class ControllerConfig:
     and ``f_omegaA(s) = ao_turn_max tanh(s / ao_turn_scale)``, steering at the edge of the
     obstacle grown by ``ao_pass_margin``. Whatever the blend, the TCP never moves towards the
     obstacle's margin faster than ``approach_rate`` times its clearance (see
-    ``ControlLaw._approach_limited``).
+    ``ControlLaw._approach_limited``), nor outwards faster than ``reach_rate`` times its
+    distance from the arm's full reach (``ControlLaw._reach_limited``).
     """
 
     rate_hz: float = 500.0
@@ -140,6 +141,7 @@ class ControllerConfig:
     switch_distance: float = 0.05
     damping: float = 0.01
     approach_rate: float = 5.0
+    reach_rate: float = 10.0
 
     def __post_init__(self) -> None:
         for spec in fields(self):
@@ -161,6 +163,7 @@ class ControllerConfig:
             "sensing_range",
             "position_gain",
             "approach_rate",
+            "reach_rate",
         ):
             if getattr(self, name) <= 0.0:
                 raise ConfigError(f"controller.{name}", "must be positive")

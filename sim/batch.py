@@ -46,7 +46,7 @@ from controller.fuzzy import OUTPUT_NAMES, OUTPUT_TERMS, FuzzyInference, RuleBas
 from controller.obstacle import absent
 from controller.planner import Trajectory
 from protocol.geometry import AXIS_SNAP, EllipticCylinder
-from protocol.kinematics import DAMPING_S2_REF
+from protocol.kinematics import DAMPING_S2_REF, reach_radii
 from protocol.messages import COMMAND, STATE
 from protocol.scenario import Mode, Scenario
 from sim.measures import Measures, MeasureStream
@@ -722,6 +722,7 @@ class _Batch:
         self.reached = np.zeros(count, dtype=np.intp)
         self.rate_step = self.period / RATE_CHANGE
         robot = self.robot
+        self.full_reach = reach_radii(robot)[1]
         self.speed_limits = np.array([[limit] for limit in robot.speed_limits])
         self.step_limits = np.array([[limit * self.period] for limit in robot.accel_limits])
         self.joint_low = np.array([[limit] for limit in robot.joint_min])
@@ -805,6 +806,7 @@ class _Batch:
         gain = config.position_gain
         vx = vx + pull * (gain * (waited[0] - px) - vx)
         vy = vy + pull * (gain * (waited[1] - py) - vy)
+        vx, vy = self._reach_limited(vx, vy, px, py)
         vz = reference_velocity[2] + config.height_gain * (
             reference[2] + pull * (waited[2] - reference[2]) - pz
         )
@@ -1090,6 +1092,25 @@ class _Batch:
         vx, vy = vx.copy(), vy.copy()
         vx[rows] = np.where(cut, near_x - excess * normal_x, near_x)
         vy[rows] = np.where(cut, near_y - excess * normal_y, near_y)
+        return vx, vy
+
+    def _reach_limited(self, vx: Array, vy: Array, px: Array, py: Array) -> tuple[Array, Array]:
+        """ControlLaw._reach_limited: outwards no faster than reach_rate times the distance
+        from full reach."""
+        radius = _norm2(px, py)
+        rows = np.flatnonzero(radius > 0.0)
+        radius = radius[rows]
+        outward_x, outward_y = px[rows] / radius, py[rows] / radius
+        near_x, near_y = vx[rows], vy[rows]
+        excess = (
+            near_x * outward_x
+            + near_y * outward_y
+            - self.config.reach_rate * _max(self.full_reach - radius, 0.0)
+        )
+        cut = excess > 0.0
+        vx, vy = vx.copy(), vy.copy()
+        vx[rows] = np.where(cut, near_x - excess * outward_x, near_x)
+        vy[rows] = np.where(cut, near_y - excess * outward_y, near_y)
         return vx, vy
 
     def _joint_rates(

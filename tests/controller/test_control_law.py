@@ -154,6 +154,28 @@ def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
         assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
 
 
+@pytest.mark.parametrize("gap", [0.004, 0.0005, 0.0])
+def test_the_tcp_moves_outwards_no_faster_than_its_distance_from_full_reach_allows(
+    gap: float,
+) -> None:
+    scenario = load_scenario("reference")
+    law = ControlLaw.for_scenario(scenario)
+    robot = scenario.robot
+    full_reach = robot.a1 + robot.a2
+    bearing = 0.7
+    out_x, out_y = math.cos(bearing), math.sin(bearing)
+    tcp = ((full_reach - gap) * out_x, (full_reach - gap) * out_y, 0.2)
+    allowed = CONFIG.reach_rate * gap
+    along_x, along_y = -out_y, out_x
+    for outward, along in ((0.1, 0.0), (0.1, 0.05), (0.1, -0.2), (-0.1, 0.05), (0.0, 0.1)):
+        vx = outward * out_x + along * along_x
+        vy = outward * out_y + along * along_y
+        limited_x, limited_y = law._reach_limited(vx, vy, tcp)
+        # Outwards at most `allowed`, along the reach circle as asked; inwards as asked.
+        assert limited_x * out_x + limited_y * out_y == pytest.approx(min(outward, allowed))
+        assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
+
+
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
     law = ControlLaw.for_scenario(load_scenario("reference"))
     far = measure(None, (0.3, 0.0, 0.2), (0.5, 0.0), CONFIG.sensing_range)

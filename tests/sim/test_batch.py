@@ -138,6 +138,23 @@ def test_batch_equals_scalar_where_the_approach_limit_and_a_fresh_side_act() -> 
     assert all(result.measures.collision_free for result in batch[6:])
 
 
+def test_batch_equals_scalar_where_the_reach_limit_acts() -> None:
+    """gen-1-138 and gen-0-9476 were carried to full stretch past a waypoint near it before
+    the reach limit (tests/sim/test_study.py)."""
+    chosen = [generate_scenario_at(seed, index) for seed, index in ((1, 138), (0, 9476))]
+    modes = [Mode.FUZZY] * 2 + [Mode.CONVENTIONAL] * 2
+    batch = simulate_batch(chosen * 2, modes)
+    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
+        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    # The limit acts there: all but off, the fuzzy mode stops in both.
+    loose = [
+        replace(scenario, controller=replace(scenario.controller, reach_rate=1e6))
+        for scenario in chosen
+    ]
+    assert all(result.measures.stops > 0 for result in simulate_batch(loose, Mode.FUZZY))
+    assert all(result.measures.stops == 0 for result in batch[:2])
+
+
 def test_a_run_does_not_depend_on_the_rest_of_its_batch(study: list[Scenario]) -> None:
     short = sorted(study, key=lambda scenario: scenario.duration)[:4]
     alone = simulate_batch(short[:1], Mode.CONVENTIONAL)

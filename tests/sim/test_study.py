@@ -85,6 +85,10 @@ HARD_CASES = [
         (2026, 271, "stopped: passed 1.6 mm off (1.7 mm below) near the stretched arm"),
         (0, 2425, "stopped: passed 1.6 mm off at a doorstep, slid back"),
         (0, 4672, "stopped: passed 3.8 mm off, ahead of the plan, slid back and turned"),
+        # Before the reach limit (ControlLaw._reach_limited): carried to full stretch 2 mm
+        # beyond a waypoint near it, slid back, stopped.
+        (1, 138, "stopped: passed 2.0 mm off at full stretch, slid back"),
+        (0, 9476, "stopped: passed 2.1 mm off at full stretch (the elbow flipped), slid back"),
     )
 ]
 
@@ -92,7 +96,8 @@ HARD_CASES = [
 @pytest.mark.parametrize(("seed", "index"), HARD_CASES)
 def test_fuzzy_holds_on_the_scenarios_it_once_failed(seed: int, index: int) -> None:
     """Each failed a must-hold before one of the changes of docs/study.md (the final
-    approach, the last segment's clear way, the approach limit, AO's side chosen afresh, PASSED):
+    approach, the last segment's clear way, the approach limit, AO's side chosen afresh, PASSED, the
+    reach limit):
     all are reachable, 20 mm clear of the inflated obstacle."""
     scenario = generate_scenario_at(seed, index, Mode.FUZZY)
     assert waypoints_clear(scenario)
