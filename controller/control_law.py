@@ -45,8 +45,12 @@ RATE_CHANGE = 0.1
 """s: the plan's rate goes from 1 to 0 or back in no less than this, so the reference never
 brakes or starts harder than the arm can follow (an arm overshooting a waiting reference
 would have to turn back: a stop)."""
-BEYOND_END = 0.01
-"""m: on the last segment AO gives way once the obstacle is this much farther than p_j."""
+CLEAR_WAY = 0.01
+"""m: AO gives way once the obstacle is this much farther from the TCP than p_j (see
+:meth:`ControlLaw._at_waypoint`). On the last segment only, an inner waypoint at the
+obstacle's doorstep, approached head on, had AO take the arm round the obstacle (``gen-0-8669``:
+the plan waited 3.5 s); on every segment, two of the jerk exceptions went (``gen-0-21``,
+``gen-0-798``)."""
 ROOM_MAX = 0.05
 """m: the free room around a waypoint (see :meth:`ControlLaw._at_waypoint`) is at most this."""
 GOAL_KEPT = (0.005, 0.03)
@@ -226,25 +230,28 @@ class ControlLaw:
 
         Inside the circle the obstacle leaves free around p_j the straight way to p_j cannot
         touch it, so AO is not needed there: 1 within half its radius, fading to 0 at its
-        edge. Over the GATE_RELEASE after p_j-1's time the room of p_j-1 hands over to that
-        of p_j, so that k_C never jumps when the plan moves on (``depth_next`` and
-        ``depth_before``: :meth:`_depth` of p_j and p_j-1, which the pull uses too).
-
-        On the last segment the TCP also counts as in the free room as far as the obstacle
-        (``clearance``) is farther than p_j (over BEYOND_END): no straight way to p_j inside
-        that disc round the TCP can touch it, and AO would only take the arm round an obstacle
-        beyond the end of the plan. Only there: before an inner waypoint the plan goes on,
-        perhaps round that obstacle.
+        edge. The TCP also counts as in the free room of p_j as far as the obstacle
+        (``clearance``) is farther than p_j (over CLEAR_WAY): no straight way to p_j inside
+        that disc round the TCP can touch it, and AO would only take the arm round an
+        obstacle beyond p_j. Over the GATE_RELEASE after p_j-1's time the room of p_j-1
+        hands over to that of p_j, so that k_C never jumps when the plan moves on
+        (``depth_next`` and ``depth_before``: :meth:`_depth` of p_j and p_j-1, which the
+        pull uses too).
         """
         times = self.trajectory.times
         release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
         share = smoothstep((progress - times[index - 1]) / release)
-        depth = max(share * depth_next, (1.0 - share) * depth_before)
-        if index == len(times) - 1 and clearance < math.inf:
-            end = self.trajectory.points[index]
-            to_end = length(tcp[0] - end[0], tcp[1] - end[1])
-            depth = max(depth, smoothstep((clearance - to_end) / BEYOND_END))
-        return depth
+        if clearance < math.inf:
+            depth_next = max(depth_next, self._clear_way(index, tcp, clearance))
+            depth_before = max(depth_before, self._clear_way(index - 1, tcp, clearance))
+        return max(share * depth_next, (1.0 - share) * depth_before)
+
+    def _clear_way(self, index: int, tcp: Point3, clearance: float) -> float:
+        """How far the obstacle (``clearance`` from the TCP) is beyond waypoint ``index``, as
+        a depth 0..1 (smoothstep over CLEAR_WAY)."""
+        point = self.trajectory.points[index]
+        to_point = length(tcp[0] - point[0], tcp[1] - point[1])
+        return smoothstep((clearance - to_point) / CLEAR_WAY)
 
     def _depth(self, index: int, tcp: Point3) -> float:
         """How deep the TCP is in the free room of waypoint ``index``, 0..1."""

@@ -32,7 +32,7 @@ import numpy.typing as npt
 from controller.behaviours import AHEAD_SPEED_FRACTION, PLANNED_REST_SPEED, TURN_LEFT, TURN_RIGHT
 from controller.control_law import (
     BEHIND,
-    BEYOND_END,
+    CLEAR_WAY,
     GATE_APPROACH,
     GATE_RELEASE,
     GOAL_HANDOVER,
@@ -880,16 +880,25 @@ class _Batch:
         py: Array,
     ) -> Array:
         """ControlLaw._at_waypoint, from the TCP's depth in the free rooms of p_j and p_j-1,
-        and on the last segment how much farther the obstacle is than p_j."""
+        and how much farther the obstacle is than each."""
         plans = self.plans
         share = _smoothstep((progress - plans.time_before) / plans.release)
-        depth = _max(share * depth_next, (1.0 - share) * depth_before)
-        last = (plans.index == plans.size - 1) & (clearance < math.inf)
-        if last.any():
-            to_end = _norm2(px - plans.point[0], py - plans.point[1])
-            clear_way = _smoothstep((clearance - to_end) / BEYOND_END)
-            depth = np.where(last, _max(depth, clear_way), depth)
-        return depth
+        present = clearance < math.inf
+        if present.any():
+            depth_next = self._clear_way(depth_next, plans.point, present, clearance, px, py)
+            depth_before = self._clear_way(
+                depth_before, plans.point_before, present, clearance, px, py
+            )
+        return _max(share * depth_next, (1.0 - share) * depth_before)
+
+    @staticmethod
+    def _clear_way(
+        depth: Array, point: Array, present: Mask, clearance: Array, px: Array, py: Array
+    ) -> Array:
+        """``depth`` raised to ControlLaw._clear_way of ``point`` where an obstacle is present."""
+        to_point = _norm2(px - point[0], py - point[1])
+        clear_way = _smoothstep((clearance - to_point) / CLEAR_WAY)
+        return np.where(present, _max(depth, clear_way), depth)
 
     def _measure(
         self,
