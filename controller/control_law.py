@@ -53,6 +53,10 @@ the plan waited 3.5 s); on every segment, two of the jerk exceptions went (``gen
 ``gen-0-798``)."""
 ROOM_MAX = 0.05
 """m: the free room around a waypoint (see :meth:`ControlLaw._at_waypoint`) is at most this."""
+HEIGHT_LEAD = (0.01, 0.02)
+"""m: how much nearer the next waypoint than the reference the TCP is when the height loop
+starts to lead (see :meth:`ControlLaw._height_lead`), and when it leads in full. Within 5 mm
+it touched half the doorstep runs and raised some peaks of jerk by half."""
 GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at
@@ -186,8 +190,9 @@ class ControlLaw:
         vx += pull * (config.position_gain * (waited[0] - tcp[0]) - vx)
         vy += pull * (config.position_gain * (waited[1] - tcp[1]) - vy)
         vx, vy = self._reach_limited(vx, vy, tcp)
-        vz = reference_velocity[2] + config.height_gain * (
-            reference[2] + pull * (waited[2] - reference[2]) - tcp[2]
+        lead = self._height_lead(waited_index == index, tcp, reference, waited)
+        vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
+            reference[2] + max(pull, lead) * (waited[2] - reference[2]) - tcp[2]
         )
         rate1, rate2 = joint_rates_for(self.robot, theta1, theta2, vx, vy, config.damping)
         command, limited = self._limit((rate1, rate2, -vz))
@@ -386,6 +391,28 @@ class ControlLaw:
         return avoid_obstacle(
             self.config, self._aim, measurement, self.side, self.heading, position
         )
+
+    def _height_lead(
+        self, ahead: bool, tcp: Point3, reference: tuple[float, ...], waited: tuple[float, ...]
+    ) -> float:
+        """How far the height loop aims from the reference's height to that of the waypoint
+        p_j it heads for, 0..1: the share of the way from the reference to p_j (in the plane)
+        that the TCP has already come, once it is HEIGHT_LEAD nearer p_j than the reference.
+
+        AO may carry the arm far ahead of the plan, and PT lets the plan catch up at a crawl
+        (AHEAD_SPEED_FRACTION). The height, which follows the reference, then lags: an arm
+        over a waypoint in the plane but 11 mm above it stood there while it came down, a
+        stop (``gen-0-5519``). Led so, the height is about the plan's at the TCP's place on
+        the way to p_j. ``ahead``: p_j is the waypoint waited for (not p_j-1).
+        """
+        if not ahead:
+            return 0.0
+        reference_to = length(reference[0] - waited[0], reference[1] - waited[1])
+        ahead_by = reference_to - length(tcp[0] - waited[0], tcp[1] - waited[1])
+        low, high = HEIGHT_LEAD
+        if ahead_by <= low:
+            return 0.0
+        return ahead_by / reference_to * smoothstep((ahead_by - low) / (high - low))
 
     def _approach_limited(
         self, vx: float, vy: float, measurement: ObstacleMeasurement

@@ -37,6 +37,7 @@ from controller.control_law import (
     GATE_RELEASE,
     GOAL_HANDOVER,
     GOAL_KEPT,
+    HEIGHT_LEAD,
     PASSED,
     RATE_CHANGE,
     ControlLaw,
@@ -807,8 +808,9 @@ class _Batch:
         vx = vx + pull * (gain * (waited[0] - px) - vx)
         vy = vy + pull * (gain * (waited[1] - py) - vy)
         vx, vy = self._reach_limited(vx, vy, px, py)
-        vz = reference_velocity[2] + config.height_gain * (
-            reference[2] + pull * (waited[2] - reference[2]) - pz
+        lead = self._height_lead(waited_is_next, px, py, reference, waited)
+        vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
+            reference[2] + _max(pull, lead) * (waited[2] - reference[2]) - pz
         )
         rate1, rate2 = self._joint_rates(theta2, sin1, cos1, sin12, cos12, vx, vy)
         command = self._limit(np.stack([rate1, rate2, -vz]))
@@ -1077,6 +1079,19 @@ class _Batch:
             k_t[rows] = fuzzy_t
             k_c[rows] = fuzzy_c * relevance * (1.0 - at_waypoint[rows])
         return k_t, k_c
+
+    @staticmethod
+    def _height_lead(ahead: Mask, px: Array, py: Array, reference: Array, waited: Array) -> Array:
+        """ControlLaw._height_lead: the share of the way from the reference to p_j the TCP has
+        come, once it is HEIGHT_LEAD nearer p_j."""
+        reference_to = _norm2(reference[0] - waited[0], reference[1] - waited[1])
+        ahead_by = reference_to - _norm2(px - waited[0], py - waited[1])
+        low, high = HEIGHT_LEAD
+        leading = ahead & (ahead_by > low)
+        if not leading.any():
+            return np.zeros_like(px)
+        share = _smoothstep((ahead_by - low) / (high - low))
+        return np.where(leading, ahead_by / np.where(leading, reference_to, 1.0) * share, 0.0)
 
     def _approach_limited(
         self, vx: Array, vy: Array, measurement: _Measurement

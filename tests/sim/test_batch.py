@@ -171,6 +171,18 @@ def test_batch_equals_scalar_where_the_way_to_an_inner_waypoint_is_clear() -> No
     assert batch[1].measures.peak_jerk < 1.1 * batch[3].measures.peak_jerk
 
 
+def test_batch_equals_scalar_where_the_height_leads() -> None:
+    """In gen-0-5519 the arm, far ahead of the plan, stood over a waypoint while it came down
+    to it before the height loop led (tests/sim/test_study.py); gen-0-7073 and -3923 are the
+    runs whose peak jerk the lead changed most, down and up."""
+    chosen = [generate_scenario_at(0, index) for index in (5519, 7073, 3923)]
+    modes = [Mode.FUZZY] * 3 + [Mode.CONVENTIONAL] * 3
+    batch = simulate_batch(chosen * 2, modes)
+    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
+        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    assert batch[0].measures.stops == 0
+
+
 def test_a_run_does_not_depend_on_the_rest_of_its_batch(study: list[Scenario]) -> None:
     short = sorted(study, key=lambda scenario: scenario.duration)[:4]
     alone = simulate_batch(short[:1], Mode.CONVENTIONAL)
