@@ -55,8 +55,10 @@ ROOM_MAX = 0.05
 """m: the free room around a waypoint (see :meth:`ControlLaw._at_waypoint`) is at most this."""
 HEIGHT_LEAD = (0.01, 0.02)
 """m: how much nearer the next waypoint than the reference the TCP is when the height loop
-starts to lead (see :meth:`ControlLaw._height_lead`), and when it leads in full. Within 5 mm
-it touched half the doorstep runs and raised some peaks of jerk by half."""
+starts to lead (see :meth:`ControlLaw._height_lead`), and when it leads in full. Led from
+the first millimetre, the height changed 265 of the 286 doorstep runs of the first 1000 of
+seed 0 and raised some peaks of jerk 2.3 times (``gen-0-73``); from 10 mm, 83, none by more
+than 5 %."""
 GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -130,6 +131,21 @@ def test_the_plan_stands_still_while_the_node_holds() -> None:
     assert law.progress == held
 
 
+def assert_cut_to(
+    limit: Callable[[float, float], tuple[float, float]], normal: float, allowed: float
+) -> None:
+    """``limit`` keeps at most ``allowed`` of the velocity along the unit vector at angle
+    ``normal``, and the rest of it (the part across it, and any negative part along it)."""
+    out_x, out_y = math.cos(normal), math.sin(normal)
+    along_x, along_y = -out_y, out_x
+    for towards, along in ((0.1, 0.0), (0.1, 0.05), (0.1, -0.2), (-0.1, 0.05), (0.0, 0.1)):
+        limited_x, limited_y = limit(
+            towards * out_x + along * along_x, towards * out_y + along * along_y
+        )
+        assert limited_x * out_x + limited_y * out_y == pytest.approx(min(towards, allowed))
+        assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
+
+
 @pytest.mark.parametrize("clearance", [0.004, 0.0005, -0.003])
 def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
     clearance: float,
@@ -143,15 +159,11 @@ def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
     tcp = (obstacle.x + reach * out_x, obstacle.y + reach * out_y, obstacle.height / 2.0)
     measurement = measure(obstacle, tcp, (0.0, 0.0), CONFIG.sensing_range, math.pi)
     assert measurement.clearance == pytest.approx(clearance)
-    allowed = CONFIG.approach_rate * max(clearance, 0.0)
-    along_x, along_y = -out_y, out_x
-    for inward, along in ((0.1, 0.0), (0.1, 0.05), (0.1, -0.2), (-0.1, 0.05), (0.0, 0.1)):
-        vx = -inward * out_x + along * along_x
-        vy = -inward * out_y + along * along_y
-        limited_x, limited_y = law._approach_limited(vx, vy, measurement)
-        # Towards the obstacle at most `allowed`, along it as asked; away from it as asked.
-        assert -(limited_x * out_x + limited_y * out_y) == pytest.approx(min(inward, allowed))
-        assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
+    assert_cut_to(
+        lambda vx, vy: law._approach_limited(vx, vy, measurement),
+        obstacle.yaw + math.pi,  # towards the obstacle
+        CONFIG.approach_rate * max(clearance, 0.0),
+    )
 
 
 @pytest.mark.parametrize("gap", [0.004, 0.0005, 0.0])
@@ -160,20 +172,10 @@ def test_the_tcp_moves_outwards_no_faster_than_its_distance_from_full_reach_allo
 ) -> None:
     scenario = load_scenario("reference")
     law = ControlLaw.for_scenario(scenario)
-    robot = scenario.robot
-    full_reach = robot.a1 + robot.a2
+    full_reach = scenario.robot.a1 + scenario.robot.a2
     bearing = 0.7
-    out_x, out_y = math.cos(bearing), math.sin(bearing)
-    tcp = ((full_reach - gap) * out_x, (full_reach - gap) * out_y, 0.2)
-    allowed = CONFIG.reach_rate * gap
-    along_x, along_y = -out_y, out_x
-    for outward, along in ((0.1, 0.0), (0.1, 0.05), (0.1, -0.2), (-0.1, 0.05), (0.0, 0.1)):
-        vx = outward * out_x + along * along_x
-        vy = outward * out_y + along * along_y
-        limited_x, limited_y = law._reach_limited(vx, vy, tcp)
-        # Outwards at most `allowed`, along the reach circle as asked; inwards as asked.
-        assert limited_x * out_x + limited_y * out_y == pytest.approx(min(outward, allowed))
-        assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
+    tcp = ((full_reach - gap) * math.cos(bearing), (full_reach - gap) * math.sin(bearing), 0.2)
+    assert_cut_to(lambda vx, vy: law._reach_limited(vx, vy, tcp), bearing, CONFIG.reach_rate * gap)
 
 
 def test_the_height_leads_by_the_share_of_the_way_to_the_waypoint_an_arm_ahead_has_come() -> None:

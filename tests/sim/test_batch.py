@@ -20,6 +20,7 @@ from sim.batch import (
     WIRE_COMMAND,
     WIRE_POSITION,
     WIRE_VELOCITY,
+    BatchRun,
     _Fuzzy,
     _max,
     _min,
@@ -117,16 +118,23 @@ def test_batch_equals_scalar_simulation_on_sampled_scenarios(
         assert batch[index].peak_k_c == pytest.approx(run.log["k_c"].max(), rel=TOLERANCE)
 
 
+def batch_against_scalar(chosen: list[Scenario]) -> list[BatchRun]:
+    """``chosen`` in fuzzy then in conventional mode through the batch simulator, each run
+    checked against the scalar simulation's."""
+    modes = [Mode.FUZZY] * len(chosen) + [Mode.CONVENTIONAL] * len(chosen)
+    batch = simulate_batch(chosen * 2, modes)
+    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
+        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    return batch
+
+
 def test_batch_equals_scalar_where_the_approach_limit_and_a_fresh_side_act() -> None:
     """gen-1-987 and gen-0-1312 went the long way round before AO chose its side afresh at
     each waypoint (tests/sim/test_study.py); in gen-0-28 and gen-0-30 the conventional mode
     collides without the approach limit."""
     chosen = [generate_scenario_at(seed, index) for seed, index in ((1, 987), (0, 1312))]
     chosen += [generate_scenario_at(0, index) for index in (28, 30)]
-    modes = [Mode.FUZZY] * 4 + [Mode.CONVENTIONAL] * 4
-    batch = simulate_batch(chosen * 2, modes)
-    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
-        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    batch = batch_against_scalar(chosen)
     # The limit acts there: all but off (it still holds at the margin), both collide.
     loose = [
         replace(scenario, controller=replace(scenario.controller, approach_rate=1e6))
@@ -142,10 +150,7 @@ def test_batch_equals_scalar_where_the_reach_limit_acts() -> None:
     """gen-1-138 and gen-0-9476 were carried to full stretch past a waypoint near it before
     the reach limit (tests/sim/test_study.py)."""
     chosen = [generate_scenario_at(seed, index) for seed, index in ((1, 138), (0, 9476))]
-    modes = [Mode.FUZZY] * 2 + [Mode.CONVENTIONAL] * 2
-    batch = simulate_batch(chosen * 2, modes)
-    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
-        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    batch = batch_against_scalar(chosen)
     # The limit acts there: all but off, the arm goes to full stretch and passes the waypoint
     # near it more than 1.5 mm off (it stopped there before AO's clear way to every
     # waypoint); with it, within 0.5 mm.
@@ -163,10 +168,7 @@ def test_batch_equals_scalar_where_the_way_to_an_inner_waypoint_is_clear() -> No
     gave way there (tests/sim/test_study.py); in gen-0-21 the fuzzy peak jerk was 4.2 times
     the conventional one."""
     chosen = [generate_scenario_at(0, index) for index in (8669, 21)]
-    modes = [Mode.FUZZY] * 2 + [Mode.CONVENTIONAL] * 2
-    batch = simulate_batch(chosen * 2, modes)
-    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
-        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    batch = batch_against_scalar(chosen)
     assert not math.isnan(batch[0].measures.completion_time)
     assert batch[1].measures.peak_jerk < 1.1 * batch[3].measures.peak_jerk
 
@@ -176,10 +178,7 @@ def test_batch_equals_scalar_where_the_height_leads() -> None:
     to it before the height loop led (tests/sim/test_study.py); gen-0-7073 and -3923 are the
     runs whose peak jerk the lead changed most, down and up."""
     chosen = [generate_scenario_at(0, index) for index in (5519, 7073, 3923)]
-    modes = [Mode.FUZZY] * 3 + [Mode.CONVENTIONAL] * 3
-    batch = simulate_batch(chosen * 2, modes)
-    for result, scenario, mode in zip(batch, chosen * 2, modes, strict=True):
-        assert_same(result.measures, simulate(scenario, mode).measures, scenario.name)
+    batch = batch_against_scalar(chosen)
     assert batch[0].measures.stops == 0
 
 
