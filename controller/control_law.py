@@ -65,6 +65,15 @@ following waypoint is undone: an arm still on its way round the obstacle keeps l
 p_j."""
 
 
+def capped_along(vx: float, vy: float, nx: float, ny: float, allowed: float) -> tuple[float, float]:
+    """``(vx, vy)`` with its part along the unit vector ``(nx, ny)`` cut to at most
+    ``allowed``; the rest of it kept (the limits on the output towards a boundary)."""
+    excess = vx * nx + vy * ny - allowed
+    if excess > 0.0:
+        return vx - excess * nx, vy - excess * ny
+    return vx, vy
+
+
 @dataclass(frozen=True, slots=True)
 class ControlOutput:
     """The joint velocity command of one tick and what led to it (for logs and figures)."""
@@ -151,8 +160,12 @@ class ControlLaw:
         reference, velocity, acceleration = self.trajectory.evaluate(progress)
         index = self.trajectory.segment_index(progress)
         self._mark_reached(index, tcp)
-        behind = self._behind(index, tcp, reference)
-        wanted = self._wanted_rate(progress, index, behind, self._away(index - 1, tcp))
+        # Plane distances several parts of the law use: the TCP's to p_j and p_j-1, the
+        # reference's to p_j.
+        to_next, to_before = self._to_waypoint(index, tcp), self._to_waypoint(index - 1, tcp)
+        reference_to_next = self._to_waypoint(index, reference)
+        behind = self._behind(index, to_next, reference_to_next, tcp, reference)
+        wanted = self._wanted_rate(progress, index, behind, self._away(index - 1, to_before))
         step = self._rate_step
         rate = self.rate = min(max(wanted, self.rate - step), self.rate + step)
         # The reference moves at rate times the plan's velocity: the path's curvature, and
@@ -160,7 +173,7 @@ class ControlLaw:
         reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
         squared = rate * rate
         # How deep the TCP is in the free rooms of p_j and p_j-1: for the pull and for AO.
-        depth_next, depth_before = self._depth(index, tcp), self._depth(index - 1, tcp)
+        depth_next, depth_before = self._depth(index, to_next), self._depth(index - 1, to_before)
         waited_index = self._waited_for(index)
         waited = self.trajectory.points[waited_index]
         pull = (1.0 - rate) * (depth_next if waited_index == index else depth_before)
@@ -177,7 +190,7 @@ class ControlLaw:
         )
         avoiding = self._avoid(measurement, (tcp[0], tcp[1]))
         at_waypoint = self._at_waypoint(
-            progress, index, tcp, depth_next, depth_before, measurement.clearance
+            progress, index, (to_next, to_before), (depth_next, depth_before), measurement.clearance
         )
         k_t, k_c = self.coordinator.weights(measurement, at_waypoint)
         total = k_t + k_c
@@ -192,7 +205,7 @@ class ControlLaw:
         vx += pull * (config.position_gain * (waited[0] - tcp[0]) - vx)
         vy += pull * (config.position_gain * (waited[1] - tcp[1]) - vy)
         vx, vy = self._reach_limited(vx, vy, tcp)
-        lead = self._height_lead(waited_index == index, tcp, reference, waited)
+        lead = self._height_lead(waited_index == index, to_next, reference_to_next)
         vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
             reference[2] + max(pull, lead) * (waited[2] - reference[2]) - tcp[2]
         )
@@ -228,9 +241,8 @@ class ControlLaw:
         self,
         progress: float,
         index: int,
-        tcp: Point3,
-        depth_next: float,
-        depth_before: float,
+        to_waypoints: tuple[float, float],
+        depths: tuple[float, float],
         clearance: float,
     ) -> float:
         """How deep the TCP is in the free room of the waypoint it heads for, 0..1.
@@ -242,32 +254,31 @@ class ControlLaw:
         that disc round the TCP can touch it, and AO would only take the arm round an
         obstacle beyond p_j. Over the GATE_RELEASE after p_j-1's time the room of p_j-1
         hands over to that of p_j, so that k_C never jumps when the plan moves on
-        (``depth_next`` and ``depth_before``: :meth:`_depth` of p_j and p_j-1, which the
-        pull uses too).
+        (``to_waypoints``: the TCP's plane distances to p_j and p_j-1; ``depths``: their
+        :meth:`_depth`, which the pull uses too).
         """
         times = self.trajectory.times
         release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
         share = smoothstep((progress - times[index - 1]) / release)
+        depth_next, depth_before = depths
         if clearance < math.inf:
-            depth_next = max(depth_next, self._clear_way(index, tcp, clearance))
-            depth_before = max(depth_before, self._clear_way(index - 1, tcp, clearance))
+            to_next, to_before = to_waypoints
+            depth_next = max(depth_next, smoothstep((clearance - to_next) / CLEAR_WAY))
+            depth_before = max(depth_before, smoothstep((clearance - to_before) / CLEAR_WAY))
         return max(share * depth_next, (1.0 - share) * depth_before)
 
-    def _clear_way(self, index: int, tcp: Point3, clearance: float) -> float:
-        """How far the obstacle (``clearance`` from the TCP) is beyond waypoint ``index``, as
-        a depth 0..1 (smoothstep over CLEAR_WAY)."""
+    def _to_waypoint(self, index: int, position: tuple[float, ...]) -> float:
+        """The plane distance from ``position`` to waypoint ``index``."""
         point = self.trajectory.points[index]
-        to_point = length(tcp[0] - point[0], tcp[1] - point[1])
-        return smoothstep((clearance - to_point) / CLEAR_WAY)
+        return length(position[0] - point[0], position[1] - point[1])
 
-    def _depth(self, index: int, tcp: Point3) -> float:
-        """How deep the TCP is in the free room of waypoint ``index``, 0..1."""
+    def _depth(self, index: int, to_waypoint: float) -> float:
+        """How deep a TCP ``to_waypoint`` from waypoint ``index`` (in the plane) is in its
+        free room, 0..1."""
         room = self._room[index]
         if room <= 0.0:
             return 0.0
-        point = self.trajectory.points[index]
-        distance = length(tcp[0] - point[0], tcp[1] - point[1])
-        return 1.0 - smoothstep((distance - room / 2.0) / (room / 2.0))
+        return 1.0 - smoothstep((to_waypoint - room / 2.0) / (room / 2.0))
 
     def _waited_for(self, index: int) -> int:
         """The waypoint a waiting plan waits for: p_j-1 until the TCP has passed it, then p_j.
@@ -298,7 +309,14 @@ class ControlLaw:
                 self.reached = candidate
                 self.side = 0
 
-    def _behind(self, index: int, tcp: Point3, reference: tuple[float, ...]) -> float:
+    def _behind(
+        self,
+        index: int,
+        to_next: float,
+        reference_to_next: float,
+        tcp: Point3,
+        reference: tuple[float, ...],
+    ) -> float:
         """How far the TCP is off the way from the reference to waypoint ``index`` in the plane
         (height is the height loop's): half of what going by the TCP adds to the distance,
         (|TCP p_j| + |TCP ref| - |ref p_j|) / 2.
@@ -306,27 +324,25 @@ class ControlLaw:
         It is the lag for an arm right behind the reference, zero for one on the way between
         them (ahead of the plan), and counts an arm beside the path (coming round an
         obstacle) long before the reference reaches p_j. -inf once the TCP has passed p_j
-        (:attr:`reached`): nothing holds the plan back there any more.
+        (:attr:`reached`): nothing holds the plan back there any more. ``to_next`` and
+        ``reference_to_next``: |TCP p_j| and |ref p_j|.
         """
         if index <= self.reached:
             return -math.inf
-        x, y, _ = self.trajectory.points[index]
         return 0.5 * (
-            length(tcp[0] - x, tcp[1] - y)
-            + length(tcp[0] - reference[0], tcp[1] - reference[1])
-            - length(reference[0] - x, reference[1] - y)
+            to_next + length(tcp[0] - reference[0], tcp[1] - reference[1]) - reference_to_next
         )
 
-    def _away(self, index: int, tcp: Point3) -> float:
-        """How far the TCP is from waypoint ``index`` in the plane; -inf once passed.
+    def _away(self, index: int, to_waypoint: float) -> float:
+        """How far the TCP is from waypoint ``index`` in the plane (``to_waypoint``); -inf
+        once passed.
 
         What holds the plan at a waypoint whose time it has passed: an arm between it and
         the reference has :meth:`_behind` near 0 without ever having been to it.
         """
         if index <= self.reached:
             return -math.inf
-        x, y, _ = self.trajectory.points[index]
-        return length(tcp[0] - x, tcp[1] - y)
+        return to_waypoint
 
     def _wanted_rate(self, progress: float, index: int, behind: float, away_passed: float) -> float:
         """How fast the plan's time should run: 1, except near an inner waypoint while the arm
@@ -394,9 +410,7 @@ class ControlLaw:
             self.config, self._aim, measurement, self.side, self.heading, position
         )
 
-    def _height_lead(
-        self, ahead: bool, tcp: Point3, reference: tuple[float, ...], waited: tuple[float, ...]
-    ) -> float:
+    def _height_lead(self, ahead: bool, to_next: float, reference_to_next: float) -> float:
         """How far the height loop aims from the reference's height to that of the waypoint
         p_j it heads for, 0..1: the share of the way from the reference to p_j (in the plane)
         that the TCP has already come, once it is HEIGHT_LEAD nearer p_j than the reference.
@@ -405,16 +419,16 @@ class ControlLaw:
         (AHEAD_SPEED_FRACTION). The height, which follows the reference, then lags: an arm
         over a waypoint in the plane but 11 mm above it stood there while it came down, a
         stop (``gen-0-5519``). Led so, the height is about the plan's at the TCP's place on
-        the way to p_j. ``ahead``: p_j is the waypoint waited for (not p_j-1).
+        the way to p_j. ``ahead``: p_j is the waypoint waited for (not p_j-1); ``to_next``
+        and ``reference_to_next``: |TCP p_j| and |ref p_j| in the plane.
         """
         if not ahead:
             return 0.0
-        reference_to = length(reference[0] - waited[0], reference[1] - waited[1])
-        ahead_by = reference_to - length(tcp[0] - waited[0], tcp[1] - waited[1])
+        ahead_by = reference_to_next - to_next
         low, high = HEIGHT_LEAD
         if ahead_by <= low:
             return 0.0
-        return ahead_by / reference_to * smoothstep((ahead_by - low) / (high - low))
+        return ahead_by / reference_to_next * smoothstep((ahead_by - low) / (high - low))
 
     def _approach_limited(
         self, vx: float, vy: float, measurement: ObstacleMeasurement
@@ -444,11 +458,9 @@ class ControlLaw:
             return vx, vy
         if clearance < 0.0:
             nx, ny = -nx, -ny
-        nx, ny = nx / gap, ny / gap
-        excess = vx * nx + vy * ny - self.config.approach_rate * max(clearance, 0.0)
-        if excess > 0.0:
-            return vx - excess * nx, vy - excess * ny
-        return vx, vy
+        return capped_along(
+            vx, vy, nx / gap, ny / gap, self.config.approach_rate * max(clearance, 0.0)
+        )
 
     def _reach_limited(self, vx: float, vy: float, tcp: Point3) -> tuple[float, float]:
         """The TCP's planar velocity without what moves it outwards faster than ``reach_rate``
@@ -465,15 +477,8 @@ class ControlLaw:
         radius = length(tcp[0], tcp[1])
         if radius == 0.0:
             return vx, vy
-        outward_x, outward_y = tcp[0] / radius, tcp[1] / radius
-        excess = (
-            vx * outward_x
-            + vy * outward_y
-            - self.config.reach_rate * max(self._full_reach - radius, 0.0)
-        )
-        if excess > 0.0:
-            return vx - excess * outward_x, vy - excess * outward_y
-        return vx, vy
+        allowed = self.config.reach_rate * max(self._full_reach - radius, 0.0)
+        return capped_along(vx, vy, tcp[0] / radius, tcp[1] / radius, allowed)
 
     def _limit(self, wanted: tuple[float, float, float]) -> tuple[tuple[float, float, float], bool]:
         """Joint speed, then acceleration limits, each by one common scale factor.

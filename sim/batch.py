@@ -108,11 +108,32 @@ def _norm3(difference: Array) -> Array:
     return np.asarray(np.sqrt(x * x + y * y + z * z))
 
 
-def _depth(room: Array, point: Array, px: Array, py: Array) -> Array:
-    """ControlLaw._depth: how deep (px, py) is in the free room round ``point``, 0..1."""
+def _depth(room: Array, to_waypoint: Array) -> Array:
+    """ControlLaw._depth: how deep a TCP ``to_waypoint`` from a waypoint is in its free room
+    ``room``, 0..1."""
     half = room / 2.0
-    inside = 1.0 - _smoothstep((_norm2(px - point[0], py - point[1]) - half) / half)
+    inside = 1.0 - _smoothstep((to_waypoint - half) / half)
     return np.asarray(np.where(room <= 0.0, 0.0, inside))
+
+
+def _clear_way(depth: Array, to_waypoint: Array, present: Mask, clearance: Array) -> Array:
+    """``depth`` raised, where an obstacle is present, to how far it is beyond a waypoint
+    ``to_waypoint`` from the TCP (ControlLaw._at_waypoint's clear way)."""
+    clear_way = _smoothstep((clearance - to_waypoint) / CLEAR_WAY)
+    return np.asarray(np.where(present, _max(depth, clear_way), depth))
+
+
+def _capped_along(
+    vx: Array, vy: Array, rows: Index, nx: Array, ny: Array, allowed: Array
+) -> tuple[Array, Array]:
+    """control_law.capped_along on the scenarios ``rows`` (new arrays; the others as given)."""
+    near_x, near_y = vx[rows], vy[rows]
+    excess = near_x * nx + near_y * ny - allowed
+    cut = excess > 0.0
+    vx, vy = vx.copy(), vy.copy()
+    vx[rows] = np.where(cut, near_x - excess * nx, near_x)
+    vy[rows] = np.where(cut, near_y - excess * ny, near_y)
+    return vx, vy
 
 
 def _keep(holder: object, rows: Index, by_row: Sequence[str], by_column: Sequence[str]) -> None:
@@ -767,7 +788,11 @@ class _Batch:
         plans.advance(progress)
         reference, plan_velocity, plan_acceleration = plans.evaluate(progress)
         tcp = np.stack([px, py, pz])
-        behind, away_passed = self._behind(tcp, reference)
+        # Plane distances several parts of the law use (as ControlLaw.step).
+        to_next = _norm2(px - plans.point[0], py - plans.point[1])
+        to_before = _norm2(px - plans.point_before[0], py - plans.point_before[1])
+        reference_to_next = _norm2(reference[0] - plans.point[0], reference[1] - plans.point[1])
+        behind, away_passed = self._behind(tcp, reference, to_next, to_before, reference_to_next)
         self.rate = _min(
             _max(self._wanted_rate(progress, behind, away_passed), self.rate - self.rate_step),
             self.rate + self.rate_step,
@@ -785,9 +810,11 @@ class _Batch:
             px, py, reference, reference_velocity, reference_acceleration
         )
         avoiding_v, avoiding_omega = self._avoid(measurement, min_distance, px, py)
-        depth_next = _depth(plans.room, plans.point, px, py)
-        depth_before = _depth(plans.room_before, plans.point_before, px, py)
-        at_waypoint = self._at_waypoint(progress, depth_next, depth_before, clearance, px, py)
+        depth_next = _depth(plans.room, to_next)
+        depth_before = _depth(plans.room_before, to_before)
+        at_waypoint = self._at_waypoint(
+            progress, depth_next, depth_before, clearance, to_next, to_before
+        )
         k_t, k_c = self._weights(measurement, min_distance, at_waypoint)
         total = k_t + k_c
         blended_v = (k_t * tracking_v + k_c * avoiding_v) / total
@@ -808,7 +835,7 @@ class _Batch:
         vx = vx + pull * (gain * (waited[0] - px) - vx)
         vy = vy + pull * (gain * (waited[1] - py) - vy)
         vx, vy = self._reach_limited(vx, vy, px, py)
-        lead = self._height_lead(waited_is_next, px, py, reference, waited)
+        lead = self._height_lead(waited_is_next, to_next, reference_to_next)
         vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
             reference[2] + _max(pull, lead) * (waited[2] - reference[2]) - pz
         )
@@ -836,7 +863,14 @@ class _Batch:
             "k_c": k_c,
         }
 
-    def _behind(self, tcp: Array, reference: Array) -> tuple[Array, Array]:
+    def _behind(
+        self,
+        tcp: Array,
+        reference: Array,
+        to_next: Array,
+        to_before: Array,
+        reference_to_next: Array,
+    ) -> tuple[Array, Array]:
         """ControlLaw._mark_reached (AO forgets its side where a waypoint is passed), then
         _behind of p_j and _away of p_j-1."""
         plans = self.plans
@@ -845,16 +879,12 @@ class _Batch:
             passed = (candidate > self.reached) & (_norm3(tcp - point) <= PASSED)
             self.reached = np.where(passed, candidate, self.reached)
             self.side = np.where(passed, 0.0, self.side)
-        x, y = plans.point[0], plans.point[1]
         behind = 0.5 * (
-            _norm2(tcp[0] - x, tcp[1] - y)
-            + _norm2(tcp[0] - reference[0], tcp[1] - reference[1])
-            - _norm2(reference[0] - x, reference[1] - y)
+            to_next + _norm2(tcp[0] - reference[0], tcp[1] - reference[1]) - reference_to_next
         )
-        away = _norm2(tcp[0] - plans.point_before[0], tcp[1] - plans.point_before[1])
         return (
             np.where(index <= self.reached, -math.inf, behind),
-            np.where(index - 1 <= self.reached, -math.inf, away),
+            np.where(index - 1 <= self.reached, -math.inf, to_before),
         )
 
     def _wanted_rate(self, progress: Array, behind: Array, away_passed: Array) -> Array:
@@ -878,29 +908,18 @@ class _Batch:
         depth_next: Array,
         depth_before: Array,
         clearance: Array,
-        px: Array,
-        py: Array,
+        to_next: Array,
+        to_before: Array,
     ) -> Array:
         """ControlLaw._at_waypoint, from the TCP's depth in the free rooms of p_j and p_j-1,
-        and how much farther the obstacle is than each."""
+        and how much farther the obstacle is than each (``to_next``, ``to_before``)."""
         plans = self.plans
         share = _smoothstep((progress - plans.time_before) / plans.release)
         present = clearance < math.inf
         if present.any():
-            depth_next = self._clear_way(depth_next, plans.point, present, clearance, px, py)
-            depth_before = self._clear_way(
-                depth_before, plans.point_before, present, clearance, px, py
-            )
+            depth_next = _clear_way(depth_next, to_next, present, clearance)
+            depth_before = _clear_way(depth_before, to_before, present, clearance)
         return _max(share * depth_next, (1.0 - share) * depth_before)
-
-    @staticmethod
-    def _clear_way(
-        depth: Array, point: Array, present: Mask, clearance: Array, px: Array, py: Array
-    ) -> Array:
-        """``depth`` raised to ControlLaw._clear_way of ``point`` where an obstacle is present."""
-        to_point = _norm2(px - point[0], py - point[1])
-        clear_way = _smoothstep((clearance - to_point) / CLEAR_WAY)
-        return np.where(present, _max(depth, clear_way), depth)
 
     def _measure(
         self,
@@ -1081,17 +1100,17 @@ class _Batch:
         return k_t, k_c
 
     @staticmethod
-    def _height_lead(ahead: Mask, px: Array, py: Array, reference: Array, waited: Array) -> Array:
+    def _height_lead(ahead: Mask, to_next: Array, reference_to_next: Array) -> Array:
         """ControlLaw._height_lead: the share of the way from the reference to p_j the TCP has
         come, once it is HEIGHT_LEAD nearer p_j."""
-        reference_to = _norm2(reference[0] - waited[0], reference[1] - waited[1])
-        ahead_by = reference_to - _norm2(px - waited[0], py - waited[1])
+        ahead_by = reference_to_next - to_next
         low, high = HEIGHT_LEAD
         leading = ahead & (ahead_by > low)
         if not leading.any():
-            return np.zeros_like(px)
+            return np.zeros_like(to_next)
         share = _smoothstep((ahead_by - low) / (high - low))
-        return np.where(leading, ahead_by / np.where(leading, reference_to, 1.0) * share, 0.0)
+        divisor = np.where(leading, reference_to_next, 1.0)
+        return np.where(leading, ahead_by / divisor * share, 0.0)
 
     def _approach_limited(
         self, vx: Array, vy: Array, measurement: _Measurement
@@ -1106,17 +1125,8 @@ class _Batch:
         inside = clearance[rows] < 0.0
         normal_x = np.where(inside, -to_x[rows], to_x[rows]) / gap[rows]
         normal_y = np.where(inside, -to_y[rows], to_y[rows]) / gap[rows]
-        near_x, near_y = vx[rows], vy[rows]
-        excess = (
-            near_x * normal_x
-            + near_y * normal_y
-            - self.config.approach_rate * _max(clearance[rows], 0.0)
-        )
-        cut = excess > 0.0
-        vx, vy = vx.copy(), vy.copy()
-        vx[rows] = np.where(cut, near_x - excess * normal_x, near_x)
-        vy[rows] = np.where(cut, near_y - excess * normal_y, near_y)
-        return vx, vy
+        allowed = self.config.approach_rate * _max(clearance[rows], 0.0)
+        return _capped_along(vx, vy, rows, normal_x, normal_y, allowed)
 
     def _reach_limited(self, vx: Array, vy: Array, px: Array, py: Array) -> tuple[Array, Array]:
         """ControlLaw._reach_limited: outwards no faster than reach_rate times the distance
@@ -1124,18 +1134,8 @@ class _Batch:
         radius = _norm2(px, py)
         rows = np.flatnonzero(radius > 0.0)
         radius = radius[rows]
-        outward_x, outward_y = px[rows] / radius, py[rows] / radius
-        near_x, near_y = vx[rows], vy[rows]
-        excess = (
-            near_x * outward_x
-            + near_y * outward_y
-            - self.config.reach_rate * _max(self.full_reach - radius, 0.0)
-        )
-        cut = excess > 0.0
-        vx, vy = vx.copy(), vy.copy()
-        vx[rows] = np.where(cut, near_x - excess * outward_x, near_x)
-        vy[rows] = np.where(cut, near_y - excess * outward_y, near_y)
-        return vx, vy
+        allowed = self.config.reach_rate * _max(self.full_reach - radius, 0.0)
+        return _capped_along(vx, vy, rows, px[rows] / radius, py[rows] / radius, allowed)
 
     def _joint_rates(
         self,

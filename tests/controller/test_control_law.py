@@ -179,19 +179,15 @@ def test_the_tcp_moves_outwards_no_faster_than_its_distance_from_full_reach_allo
 
 
 def test_the_height_leads_by_the_share_of_the_way_to_the_waypoint_an_arm_ahead_has_come() -> None:
-    law = ControlLaw.for_scenario(load_scenario("reference"))
-    waypoint = (0.4, 0.1, 0.2)
-    reference = (0.4, 0.06, 0.25)  # 40 mm short of the waypoint
-    lead = law._height_lead
-    assert lead(True, (0.4, 0.06, 0.25), reference, waypoint) == 0.0  # with the reference
-    assert lead(True, (0.4, 0.055, 0.25), reference, waypoint) == 0.0  # 5 mm ahead: not yet
-    assert lead(True, (0.4, 0.1, 0.25), reference, waypoint) == pytest.approx(1.0)
-    assert lead(True, (0.4, 0.08, 0.25), reference, waypoint) == pytest.approx(0.5)
-    assert 0.0 < lead(True, (0.4, 0.075, 0.25), reference, waypoint) < 15.0 / 40.0
-    # Beside the way, as far from the waypoint as the reference: not ahead.
-    assert lead(True, (0.44, 0.1, 0.25), reference, waypoint) == 0.0
+    lead = ControlLaw.for_scenario(load_scenario("reference"))._height_lead
+    reference_to_next = 0.04  # the reference 40 mm short of p_j
+    assert lead(True, 0.04, reference_to_next) == 0.0  # with it, or beside the way as far
+    assert lead(True, 0.035, reference_to_next) == 0.0  # 5 mm ahead: not yet
+    assert lead(True, 0.0, reference_to_next) == pytest.approx(1.0)
+    assert lead(True, 0.02, reference_to_next) == pytest.approx(0.5)
+    assert 0.0 < lead(True, 0.025, reference_to_next) < 15.0 / 40.0
     # Heading for p_j-1, not yet passed: the lead is for p_j only.
-    assert lead(False, (0.4, 0.1, 0.25), reference, waypoint) == 0.0
+    assert lead(False, 0.0, reference_to_next) == 0.0
 
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
