@@ -46,6 +46,9 @@ overhead, fitted to the times of a batch of short runs and one of long runs on o
 machines (500 to 760)."""
 ENGAGED_K_C = 0.5
 """A run where k_C reached this has avoided: AO carried at least half of the command."""
+NEAR_STOP = 2.0
+"""A run whose stop margin is below this came near a stop: it was slower than twice the stop
+speed for STOP_MIN_TICKS ticks (how many runs a change of the law may tip into stops)."""
 FUZZY_TERMS = {"min_distance": 4, "beta": 4}
 """Input of the rule base -> numbers of one of its terms (a trapezoid)."""
 PEAK_OUTPUTS = ("k_T", "k_C")
@@ -351,6 +354,9 @@ def summary(outcomes: Sequence[Outcome]) -> dict[str, str]:
         "scenarios": f"{count}",
         "collisions": f"{collisions} ({100.0 * collisions / count:.1f} %)",
         "scenarios with stops": f"{sum(m.stops > 0 for m in measures)}",
+        f"scenarios near a stop (margin < {NEAR_STOP:g})": str(
+            sum(m.stop_margin < NEAR_STOP for m in measures)
+        ),
         "waypoints missed (> 2 mm)": f"{sum(misses)} in {sum(n > 0 for n in misses)} scenarios",
         "peak jerk median / p95 (m/s^3)": _median_p95(peak, "{:.1f}"),
         "RMS jerk median / p95 (m/s^3)": _median_p95(rms, "{:.2f}"),

@@ -40,6 +40,10 @@ class Measures:
     collision_free: bool
     min_clearance: float
     stops: int
+    stop_margin: float
+    """How near the run came to a stop: the slowest planar speed the TCP kept up over
+    STOP_MIN_TICKS ticks in a row where stops count, over the stop speed. Below 1 exactly
+    where a stop is counted; inf if no stretch of the run counts."""
     peak_jerk: float
     rms_jerk: float
     max_command_jump: float
@@ -63,6 +67,7 @@ TABLE_ROWS = (
     ("collision_free", "collision-free", "", 1.0, "{}"),
     ("min_clearance", "min clearance", "mm", 1e3, "{:.2f}"),
     ("stops", "stops", "", 1.0, "{}"),
+    ("stop_margin", "stop margin (slowest / stop speed)", "", 1.0, "{:.2f}"),
     ("peak_jerk", "peak jerk", "m/s^3", 1.0, "{:.1f}"),
     ("rms_jerk", "RMS jerk", "m/s^3", 1.0, "{:.2f}"),
     ("max_command_jump", "max per-tick command jump", "rad/s", 1.0, "{:.4f}"),
@@ -163,6 +168,8 @@ class MeasureStream:
         self._completion = np.full(count, math.nan)
         self._stops = np.zeros(count, dtype=np.int64)
         self._slow_run = np.zeros(count, dtype=np.int64)
+        self._slowest = np.full(count, math.inf)
+        self._tail_watched_speed = np.zeros((0, count))
         self._tail_velocity = np.zeros((0, 3, count))
         self._tail_clock = np.zeros((0, count))
         self._tail_position = np.zeros((0, 3, count))
@@ -201,6 +208,7 @@ class MeasureStream:
             & ~near_any(progress, self._rests, STOP_REST_MARGIN)
         )
         self._fold_stops(watched & (speed < self._threshold) & valid)
+        self._fold_slowest(np.where(watched & valid, speed, math.inf))
 
         for index in range(self._waypoints.shape[1]):
             distance = _length(position - self._waypoints[:, index].T)
@@ -264,6 +272,15 @@ class MeasureStream:
         self._stops += (ends & (length >= STOP_MIN_TICKS)).sum(axis=0)
         self._slow_run = np.where(slow[-1], length[-1], 0)
 
+    def _fold_slowest(self, watched_speed: Array) -> None:
+        """The slowest speed kept up over STOP_MIN_TICKS ticks in a row (``watched_speed``:
+        inf where stops do not count), across blocks."""
+        series = np.concatenate([self._tail_watched_speed, watched_speed])
+        if len(series) >= STOP_MIN_TICKS:
+            windows = np.lib.stride_tricks.sliding_window_view(series, STOP_MIN_TICKS, axis=0)
+            self._slowest = np.minimum(self._slowest, windows.max(axis=-1).min(axis=0))
+        self._tail_watched_speed = series[-(STOP_MIN_TICKS - 1) :]
+
     BY_ROW = (
         "_waypoints",
         "_last",
@@ -282,8 +299,15 @@ class MeasureStream:
         "_completion",
         "_stops",
         "_slow_run",
+        "_slowest",
     )
-    BY_COLUMN = ("_tail_velocity", "_tail_clock", "_tail_position", "_tail_command")
+    BY_COLUMN = (
+        "_tail_velocity",
+        "_tail_clock",
+        "_tail_position",
+        "_tail_command",
+        "_tail_watched_speed",
+    )
 
     def keep(self, rows: npt.NDArray[np.intp]) -> None:
         """Only the runs ``rows`` from now on (the others have ended)."""
@@ -298,11 +322,13 @@ class MeasureStream:
         """The measures of the runs ``rows`` (all if None), in their order."""
         stops = self._stops + (self._slow_run >= STOP_MIN_TICKS)
         rms = np.sqrt(self._square_sum / np.maximum(self._windows, 1))
+        margin = self._slowest / self._threshold
         return [
             Measures(
                 collision_free=bool(self._min_clearance[row] > 0.0),
                 min_clearance=float(self._min_clearance[row]),
                 stops=int(stops[row]),
+                stop_margin=float(margin[row]),
                 peak_jerk=float(self._peak[row]),
                 rms_jerk=float(rms[row]),
                 max_command_jump=float(self._jump[row]),

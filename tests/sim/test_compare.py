@@ -19,6 +19,7 @@ from controller.fuzzy import RuleBase
 from protocol.errors import ConfigError
 from protocol.scenario import Mode
 from sim.compare import (
+    NEAR_STOP,
     TICK_OVERHEAD_STEPS,
     Job,
     Variant,
@@ -71,6 +72,12 @@ def test_writes_a_row_per_scenario_and_mode_the_table_and_the_figures(
     assert all(float(row["peak_jerk"]) > 0.0 for row in table)
     assert "| measure | fuzzy | conventional |" in printed
     assert "scenarios where avoidance engaged" in printed
+    near = {
+        mode: sum(float(r["stop_margin"]) < NEAR_STOP for r in table if r["mode"] == mode)
+        for mode in ("fuzzy", "conventional")
+    }
+    row = f"| scenarios near a stop (margin < {NEAR_STOP:g}) |"
+    assert f"{row} {near['fuzzy']} | {near['conventional']} |" in printed
     for name in ("compare.png", "worst-fuzzy.png", "worst-conventional.png"):
         assert (out / name).stat().st_size > 10_000
 

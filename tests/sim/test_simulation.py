@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from controller.runlog import RunLog
+from protocol.kinematics import tcp_velocity
 from protocol.scenario import Mode, load_scenario
 from sim.cli import main as sim_main
-from sim.measures import WAYPOINT_TOLERANCE, compute_measures
+from sim.measures import (
+    STOP_MIN_TICKS,
+    WAYPOINT_TOLERANCE,
+    compute_measures,
+    stop_threshold_and_rests,
+)
 from sim.simulation import SimulationRun, simulate
 
 
@@ -94,6 +102,42 @@ def test_measures_count_stops_and_collisions_from_the_log() -> None:
     assert compute_measures(run.scenario, log).stops == 1
     log["clearance"][middle] = -0.001
     assert not compute_measures(run.scenario, log).collision_free
+
+
+def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
+    run = simulate(load_scenario("no_obstacle"), Mode.FUZZY)
+    threshold = stop_threshold_and_rests(run.scenario)[0]
+    assert run.measures.stops == 0 and 1.0 < run.measures.stop_margin < math.inf
+    middle = len(run.log) // 3
+    ticks = slice(middle, middle + 10)
+    log = run.log
+    speed = np.hypot(
+        *tcp_velocity(
+            run.scenario.robot,
+            log["theta1"][ticks],
+            log["theta2"][ticks],
+            log["theta1_rate"][ticks],
+            log["theta2_rate"][ticks],
+            np,
+        )
+    )
+    assert speed.min() > 4.0 * threshold  # the frozen and slowed ticks below are the slowest
+
+    def measured(ticks: int, scale: float) -> tuple[int, float]:
+        log = RunLog.from_array(run.log.data.copy())
+        for name in ("theta1_rate", "theta2_rate", "d3_rate"):
+            log[name][middle : middle + ticks] *= scale
+        measures = compute_measures(run.scenario, log)
+        return measures.stops, measures.stop_margin
+
+    # Two frozen ticks are not a stop, and the margin is that of the ticks around them.
+    stops, margin = measured(STOP_MIN_TICKS - 1, 0.0)
+    assert stops == 0 and margin > 1.0
+    assert measured(STOP_MIN_TICKS, 0.0) == (1, 0.0)
+    # Slowed to 1.5 times the stop speed for ten ticks: near a stop, not one.
+    factor = 1.5 * threshold / speed.min()
+    stops, margin = measured(10, factor)
+    assert stops == 0 and 1.0 < margin < 1.6
 
 
 def test_command_line_writes_table_figure_and_json(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
