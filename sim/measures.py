@@ -43,7 +43,8 @@ class Measures:
     stop_margin: float
     """How near the run came to a stop: the slowest planar speed the TCP kept up over
     STOP_MIN_TICKS ticks in a row where stops count, over the stop speed. Below 1 exactly
-    where a stop is counted; inf if no stretch of the run counts."""
+    where a stop is counted; inf if no stretch of the run counts, or the plan does not move in
+    the plane."""
     peak_jerk: float
     rms_jerk: float
     max_command_jump: float
@@ -322,7 +323,12 @@ class MeasureStream:
         """The measures of the runs ``rows`` (all if None), in their order."""
         stops = self._stops + (self._slow_run >= STOP_MIN_TICKS)
         rms = np.sqrt(self._square_sum / np.maximum(self._windows, 1))
-        margin = self._slowest / self._threshold
+        margin = np.divide(  # a plan that stays put in the plane has no stop speed
+            self._slowest,
+            self._threshold,
+            out=np.full_like(self._slowest, math.inf),
+            where=self._threshold > 0.0,
+        )
         return [
             Measures(
                 collision_free=bool(self._min_clearance[row] > 0.0),

@@ -109,34 +109,35 @@ def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
     threshold = stop_threshold_and_rests(run.scenario)[0]
     assert run.measures.stops == 0 and 1.0 < run.measures.stop_margin < math.inf
     middle = len(run.log) // 3
-    ticks = slice(middle, middle + 10)
+    stretch = slice(middle, middle + 10)
     log = run.log
     speed = np.hypot(
         *tcp_velocity(
             run.scenario.robot,
-            log["theta1"][ticks],
-            log["theta2"][ticks],
-            log["theta1_rate"][ticks],
-            log["theta2_rate"][ticks],
+            log["theta1"][stretch],
+            log["theta2"][stretch],
+            log["theta1_rate"][stretch],
+            log["theta2_rate"][stretch],
             np,
         )
     )
-    assert speed.min() > 4.0 * threshold  # the frozen and slowed ticks below are the slowest
+    assert speed.min() > 4.0 * threshold  # well clear of a stop before it is tampered with
 
     def measured(ticks: int, scale: float) -> tuple[int, float]:
-        log = RunLog.from_array(run.log.data.copy())
+        """Stops and stop margin with the joint rates of ``ticks`` ticks from the middle
+        scaled by ``scale``."""
+        tampered = RunLog.from_array(run.log.data.copy())
         for name in ("theta1_rate", "theta2_rate", "d3_rate"):
-            log[name][middle : middle + ticks] *= scale
-        measures = compute_measures(run.scenario, log)
+            tampered[name][middle : middle + ticks] *= scale
+        measures = compute_measures(run.scenario, tampered)
         return measures.stops, measures.stop_margin
 
-    # Two frozen ticks are not a stop, and the margin is that of the ticks around them.
+    # Two frozen ticks are not a stop, and the margin stays above 1; three are both.
     stops, margin = measured(STOP_MIN_TICKS - 1, 0.0)
     assert stops == 0 and margin > 1.0
     assert measured(STOP_MIN_TICKS, 0.0) == (1, 0.0)
-    # Slowed to 1.5 times the stop speed for ten ticks: near a stop, not one.
-    factor = 1.5 * threshold / speed.min()
-    stops, margin = measured(10, factor)
+    # Slowed to about 1.5 times the stop speed for ten ticks: near a stop, not one.
+    stops, margin = measured(10, 1.5 * threshold / speed.min())
     assert stops == 0 and 1.0 < margin < 1.6
 
 
