@@ -29,7 +29,13 @@ from textual.containers import Horizontal, Vertical
 from textual.widgets import Footer, Header, RichLog, Static
 
 from bridge.session import ZenohEndpoint, add_zenoh_arguments, endpoint_from_args
-from protocol.cli import add_verbosity, configure_logging, interruptible, number
+from protocol.cli import (
+    add_verbosity,
+    configure_logging,
+    interruptible,
+    number,
+    quiet_on_closed_pipe,
+)
 from protocol.errors import ScaraError
 from protocol.keys import STATE_KEYS, check_robot, command_key, state_key
 from protocol.scenario import Scenario, load_scenario, task_document
@@ -376,6 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@quiet_on_closed_pipe
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

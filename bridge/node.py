@@ -46,7 +46,7 @@ from bridge.session import add_zenoh_arguments, endpoint_from_args
 from bridge.view import Event
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, open_bus_from_args
-from protocol.cli import add_verbosity, configure_logging, number
+from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
 from protocol.errors import ScaraError
 from protocol.keys import (
     COMMANDS,
@@ -378,6 +378,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

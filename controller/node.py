@@ -41,7 +41,7 @@ from controller.behaviours import TURN_LEFT, TURN_RIGHT
 from controller.control_law import ControlLaw, ControlOutput
 from controller.planner import load_planned
 from controller.runlog import COLUMNS, RunLog, row_of
-from protocol.cli import number
+from protocol.cli import number, quiet_on_closed_pipe
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError, EncodeError
 from protocol.messages import (
@@ -609,6 +609,7 @@ def run(node: ControllerNode, args: argparse.Namespace) -> None:
         node.run_realtime(args.max_wall_time)
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     return node_main(build_parser(), argv, load, make, run)
 

@@ -26,7 +26,7 @@ from typing import Any
 import can
 
 from plant_sim.model import PlantModel
-from protocol.cli import number
+from protocol.cli import number, quiet_on_closed_pipe
 from protocol.codec import MessageCodec
 from protocol.kinematics import forward
 from protocol.messages import (
@@ -270,6 +270,7 @@ def run(node: PlantNode, args: argparse.Namespace) -> None:
     node.run(args.duration)
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     return node_main(build_parser(), argv, load_scenario, make, run)
 

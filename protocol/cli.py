@@ -1,14 +1,21 @@
 """What every command shares: ``-v`` for diagnostics through :mod:`logging` (python-can's
-way), argparse types that check a number's range and name the flag when it is wrong, and
-stopping on SIGINT however the command was started."""
+way), argparse types that check a number's range and name the flag when it is wrong,
+stopping on SIGINT however the command was started, and a quiet exit when the reader of its
+output goes away."""
 
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import math
+import os
 import signal
+import sys
 from collections.abc import Callable
+from typing import ParamSpec
+
+Arguments = ParamSpec("Arguments")
 
 
 def add_verbosity(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +43,25 @@ def interruptible() -> None:
     starts its background commands so, Python then keeps ignoring it, and the command, or a
     test or launcher stopping it the documented way, would wait for ever."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def quiet_on_closed_pipe(main: Callable[Arguments, int]) -> Callable[Arguments, int]:
+    """A command's ``main`` that exits with 1, without a traceback, when the reader of its
+    output goes away (``scara-compare | head``), as Python's documentation advises (the
+    note on SIGPIPE in :mod:`signal`): stdout is pointed at /dev/null, so that the
+    interpreter's last flush does not fail again."""
+
+    @functools.wraps(main)
+    def run(*args: Arguments.args, **kwargs: Arguments.kwargs) -> int:
+        try:
+            code = main(*args, **kwargs)
+            sys.stdout.flush()
+        except BrokenPipeError:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 1
+        return code
+
+    return run
 
 
 def number(

@@ -35,7 +35,7 @@ from mcap.writer import Writer
 from bridge.view import VIEWED, RobotView
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, enlarge_receive_buffer, open_bus_from_args
-from protocol.cli import add_verbosity, configure_logging, number
+from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
 from protocol.codec import DBC_TEXT, alive_counter
 from protocol.e2e import E2EMonitor
 from protocol.errors import ScaraError
@@ -284,6 +284,7 @@ def main_recover(argv: Sequence[str]) -> int:
     return 0
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     arguments = list(sys.argv[1:] if argv is None else argv)
     if arguments[:1] == ["recover"]:

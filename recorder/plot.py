@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-from protocol.cli import add_verbosity, configure_logging
+from protocol.cli import add_verbosity, configure_logging, quiet_on_closed_pipe
 from protocol.errors import ScaraError
 from protocol.scenario import parse_scenario
 from recorder.mcap_can import RecordingError, read_attachments
@@ -51,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

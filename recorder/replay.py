@@ -31,7 +31,13 @@ from tqdm import tqdm
 from bridge.session import add_zenoh_arguments, endpoint_from_args
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, open_bus_from_args
-from protocol.cli import add_verbosity, configure_logging, interruptible, number
+from protocol.cli import (
+    add_verbosity,
+    configure_logging,
+    interruptible,
+    number,
+    quiet_on_closed_pipe,
+)
 from protocol.errors import ScaraError
 from protocol.keys import STATE_KEYS, check_robot, state_key
 from protocol.realtime import tune_process
@@ -330,6 +336,7 @@ def regression_main(args: argparse.Namespace) -> int:
     return 0 if report.passed else 1
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from controller.planner import load_planned
-from protocol.cli import add_verbosity, configure_logging
+from protocol.cli import add_verbosity, configure_logging, quiet_on_closed_pipe
 from protocol.errors import ScaraError
 from protocol.scenario import SCENARIO_DIR, Mode
 from sim.measures import format_table
@@ -51,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

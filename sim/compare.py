@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from controller.fuzzy import OUTPUT_TERMS, RuleBase
-from protocol.cli import interruptible
+from protocol.cli import interruptible, quiet_on_closed_pipe
 from protocol.config import ControllerConfig
 from protocol.errors import ConfigError
 from protocol.scenario import Mode, Scenario
@@ -539,6 +539,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     try:
         return _main(argv)

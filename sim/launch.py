@@ -28,7 +28,13 @@ from tqdm import tqdm
 from controller.node import add_comms_timeout_argument
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, parse_options, resolve_transport
-from protocol.cli import add_verbosity, configure_logging, interruptible, number
+from protocol.cli import (
+    add_verbosity,
+    configure_logging,
+    interruptible,
+    number,
+    quiet_on_closed_pipe,
+)
 from protocol.errors import ScaraError
 from protocol.node import ClockMode, add_timing_arguments
 from protocol.scenario import Mode
@@ -237,6 +243,7 @@ def _interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

@@ -22,7 +22,7 @@ import numpy as np
 from mcap.reader import make_reader
 
 from controller.runlog import COLUMNS, RunLog
-from protocol.cli import add_verbosity, configure_logging
+from protocol.cli import add_verbosity, configure_logging, quiet_on_closed_pipe
 from protocol.errors import ScaraError
 from protocol.scenario import parse_scenario
 from sim.measures import Measures, compute_measures, format_table
@@ -138,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

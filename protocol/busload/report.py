@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 from protocol.busload.bound import minimum_load
 from protocol.busload.load import DEFAULT_BITRATE, FRAMES, bus_load, max_rate_hz
-from protocol.cli import add_verbosity, configure_logging, number
+from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
 
 DEFAULT_RATES_HZ = (500.0, 1000.0)
 TARGET_LOAD = 0.30
@@ -121,6 +121,7 @@ def report(
     return "\n".join(lines)
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     """Print the bus load table (Markdown) of the wire defined by scara.dbc."""
     parser = argparse.ArgumentParser(

@@ -19,7 +19,7 @@ from types import FrameType
 import can
 import zenoh
 
-from protocol.cli import add_verbosity, configure_logging, number
+from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
 from protocol.realtime import tune_process
 from protocol.zenoh_can.config import (
     DEFAULT_HOST,
@@ -92,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)

@@ -1,13 +1,15 @@
 """What every command shares (``protocol.cli``): a bad number names the flag; SIGINT stops
-a command however it was started."""
+a command however it was started; a reader that goes away does not give a traceback."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from support import ROOT, SIGINT_IGNORED
@@ -67,3 +69,30 @@ def test_interruptible_stops_on_sigint_a_process_started_with_it_ignored(restore
     assert stopped == restored
     if restored:
         assert "KeyboardInterrupt" in err
+
+
+@pytest.mark.parametrize(
+    ("module", "arguments"),
+    [
+        ("protocol.busload.report", []),
+        ("sim.cli", ["reference", "--mode", "fuzzy"]),
+        ("sim.compare", ["-n", "2", "--seed", "9", "--workers", "1", "--no-figure", "-q"]),
+    ],
+)
+def test_a_command_whose_reader_has_gone_exits_1_without_a_traceback(
+    module: str, arguments: list[str], tmp_path: Path
+) -> None:
+    """As ``scara-compare | head -0``: the pipe is closed before the command writes."""
+    reader, writer = os.pipe()
+    os.close(reader)
+    outputs = ["--out", str(tmp_path)] if module.startswith("sim.") else []
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())",
+             *arguments, *outputs],
+            cwd=ROOT, stdout=writer, stderr=subprocess.PIPE, text=True, timeout=120,
+        )  # fmt: skip
+    finally:
+        os.close(writer)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr and "BrokenPipeError" not in done.stderr, done.stderr
