@@ -207,9 +207,10 @@ class MeasureStream:
             & (progress >= self._start + STOP_EDGE_MARGIN)
             & (progress <= self._end - STOP_EDGE_MARGIN)
             & ~near_any(progress, self._rests, STOP_REST_MARGIN)
+            & valid
         )
-        self._fold_stops(watched & (speed < self._threshold) & valid)
-        self._fold_slowest(np.where(watched & valid, speed, math.inf))
+        self._fold_stops(watched & (speed < self._threshold))
+        self._fold_slowest(np.where(watched, speed, math.inf))
 
         for index in range(self._waypoints.shape[1]):
             distance = _length(position - self._waypoints[:, index].T)
