@@ -40,7 +40,8 @@ waypoint, and that reversal was a stop (``gen-1-488``, ``gen-2026-271``, ``gen-0
 GATE_APPROACH = 0.4
 """s of plan before a waypoint over which the gate closes (the reference may slow to wait)."""
 GATE_RELEASE = 0.2
-"""s of plan after a waypoint over which the gate opens again."""
+"""s of plan after a waypoint over which its free room hands over to the next one's (see
+:meth:`ControlLaw._at_waypoint`)."""
 RATE_CHANGE = 0.1
 """s: the plan's rate goes from 1 to 0 or back in no less than this, so the reference never
 brakes or starts harder than the arm can follow (an arm overshooting a waiting reference
@@ -349,10 +350,14 @@ class ControlLaw:
         is off the way to it (:meth:`_behind`) or, once the waypoint's time is past, away from
         it (:meth:`_away`), where the plan slows down to wait for it.
 
-        The gate of waypoint p_j closes over the GATE_APPROACH before its time and opens over
-        the GATE_RELEASE after it; how much it holds the plan back grows across BEHIND with
-        how far off the arm is. Both are smoothsteps, and :meth:`step` limits how fast the
-        rate changes (RATE_CHANGE).
+        The gate of waypoint p_j closes over the GATE_APPROACH before its time and stays
+        closed after it until the arm has passed p_j; how much it holds the plan back grows
+        across BEHIND with how far off the arm is. Both are smoothsteps, and :meth:`step`
+        limits how fast the rate changes (RATE_CHANGE). A gate that opened again over the
+        GATE_RELEASE after p_j's time let the plan creep on while it waited (a hold short of
+        1 runs the plan's time, which opened the gate further), and it left an arm the final
+        approach was bringing in 2.02 mm off (``gen-11-4085``): a waypoint is a task, and the
+        plan does not move on from it undone.
         """
         times = self.trajectory.times
         low, high = BEHIND
@@ -361,10 +366,8 @@ class ControlLaw:
             approach = min(GATE_APPROACH, (times[index] - times[index - 1]) / 2.0)
             gate = smoothstep((progress - times[index] + approach) / approach)
             hold = gate * smoothstep((behind - low) / (high - low))
-        if index >= 2:  # just past inner waypoint p_j-1
-            release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
-            gate = 1.0 - smoothstep((progress - times[index - 1]) / release)
-            hold = max(hold, gate * smoothstep((away_passed - low) / (high - low)))
+        if index >= 2:  # past inner waypoint p_j-1's time, the arm not yet past it
+            hold = max(hold, smoothstep((away_passed - low) / (high - low)))
         return 1.0 - hold
 
     def _goal(self, progress: float, index: int, behind: float) -> tuple[float, float]:

@@ -891,13 +891,12 @@ class _Batch:
         """ControlLaw._wanted_rate: the plan slows near an inner waypoint the arm is off."""
         plans = self.plans
         low, high = BEHIND
-        approach, release = plans.approach, plans.release
+        approach = plans.approach
         gate = _smoothstep((progress - plans.time + approach) / approach)
         hold = np.where(plans.inner, gate * _smoothstep((behind - low) / (high - low)), 0.0)
-        gate = 1.0 - _smoothstep((progress - plans.time_before) / release)
         hold = np.where(
             plans.inner_before,
-            _max(hold, gate * _smoothstep((away_passed - low) / (high - low))),
+            _max(hold, _smoothstep((away_passed - low) / (high - low))),
             hold,
         )
         return 1.0 - hold

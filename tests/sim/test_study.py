@@ -94,6 +94,9 @@ HARD_CASES = [
         (0, 8669, "never finished: AO went round an obstacle beyond an inner waypoint, 3.5 s"),
         # Before the height loop led an arm ahead of the plan (ControlLaw._height_lead).
         (0, 5519, "stopped twice: over the waypoint in the plane, 11 mm above it, came down"),
+        # Before the plan waited at a passed waypoint's time until the arm had been to it
+        # (ControlLaw._wanted_rate); found on 10,000 of seed 11, a seed tuned on never.
+        (11, 4085, "missed by 2.02 mm: the plan crept on while the final approach came in"),
     )
 ]
 
@@ -102,7 +105,8 @@ HARD_CASES = [
 def test_fuzzy_holds_on_the_scenarios_it_once_failed(seed: int, index: int) -> None:
     """Each failed a must-hold before one of the changes of docs/study.md (the final
     approach, the clear way, the approach limit, AO's side chosen afresh, PASSED, the reach
-    limit, the height lead): all are reachable, 20 mm clear of the inflated obstacle."""
+    limit, the height lead, the plan waiting until the waypoint is done): all are reachable,
+    20 mm clear of the inflated obstacle."""
     scenario = generate_scenario_at(seed, index, Mode.FUZZY)
     assert waypoints_clear(scenario)
     measures = simulate(scenario).measures
