@@ -101,10 +101,10 @@ def measure(
         blocked = entry <= 1.0 and exit_ >= 0.0
     to_nearest = (nearest[0] - px, nearest[1] - py)
     side = cross((gx, gy), to_nearest)
-    span = length(*to_nearest) * goal_distance
+    nearest_distance = length(*to_nearest)
+    span = nearest_distance * goal_distance
     ahead = (gx * to_nearest[0] + gy * to_nearest[1]) / span if span > 0.0 else 1.0
     toward = -1.0
-    nearest_distance = length(*to_nearest)
     if heading is not None and nearest_distance > 0.0:
         toward = (
             math.cos(heading) * to_nearest[0] + math.sin(heading) * to_nearest[1]
