@@ -351,13 +351,13 @@ class ControlLaw:
         it (:meth:`_away`), where the plan slows down to wait for it.
 
         The gate of waypoint p_j closes over the GATE_APPROACH before its time and stays
-        closed after it until the arm has passed p_j; how much it holds the plan back grows
-        across BEHIND with how far off the arm is. Both are smoothsteps, and :meth:`step`
-        limits how fast the rate changes (RATE_CHANGE). A gate that opened again over the
-        GATE_RELEASE after p_j's time let the plan creep on while it waited (a hold short of
-        1 runs the plan's time, which opened the gate further), and it left an arm the final
-        approach was bringing in 2.02 mm off (``gen-11-4085``): a waypoint is a task, and the
-        plan does not move on from it undone.
+        closed after it for as long as the arm, not yet past p_j, is away from it; how much
+        it holds the plan back grows across BEHIND with how far off the arm is. Both are
+        smoothsteps, and :meth:`step` limits how fast the rate changes (RATE_CHANGE). A gate
+        that opened again over the GATE_RELEASE after p_j's time let the plan creep on while
+        it waited (a hold short of 1 runs the plan's time, which opened the gate further),
+        and it left an arm the final approach was bringing in 2.02 mm off (``gen-11-4085``):
+        a waypoint is a task, and the plan does not move on from it undone.
         """
         times = self.trajectory.times
         low, high = BEHIND

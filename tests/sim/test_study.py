@@ -95,7 +95,7 @@ HARD_CASES = [
         # Before the height loop led an arm ahead of the plan (ControlLaw._height_lead).
         (0, 5519, "stopped twice: over the waypoint in the plane, 11 mm above it, came down"),
         # Before the plan waited at a passed waypoint's time until the arm had been to it
-        # (ControlLaw._wanted_rate); found on 10,000 of seed 11, a seed tuned on never.
+        # (ControlLaw._wanted_rate); found on 10,000 of seed 11, never run before.
         (11, 4085, "missed by 2.02 mm: the plan crept on while the final approach came in"),
     )
 ]
