@@ -12,6 +12,7 @@ come to it, instead of pulling the arm across the corner.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -76,6 +77,24 @@ def capped_along(vx: float, vy: float, nx: float, ny: float, allowed: float) -> 
 
 
 @dataclass(frozen=True, slots=True)
+class Windows:
+    """The spans of plan, in s, over which the law's smooth changes near the end of one
+    segment (and the start of the next) take place: GATE_APPROACH, GATE_RELEASE and
+    GOAL_HANDOVER, each at most half the segment so that those of its two ends never
+    overlap. Fixed by the plan, so worked out once, not every tick."""
+
+    approach: float
+    release: float
+    handover: float
+
+    @classmethod
+    def of_segment(cls, start: float, end: float) -> Windows:
+        """The windows of the segment from plan time ``start`` to ``end``."""
+        half = (end - start) / 2.0
+        return cls(min(GATE_APPROACH, half), min(GATE_RELEASE, half), min(GOAL_HANDOVER, half))
+
+
+@dataclass(frozen=True, slots=True)
 class ControlOutput:
     """The joint velocity command of one tick and what led to it (for logs and figures)."""
 
@@ -112,6 +131,10 @@ class ControlLaw:
         self._aim = obstacle.grown(config.ao_pass_margin) if obstacle is not None else None
         self.coordinator = coordinator
         self._room = tuple(self._free_room(point) for point in trajectory.points)
+        self.windows = tuple(
+            Windows.of_segment(start, end) for start, end in itertools.pairwise(trajectory.times)
+        )
+        """Per segment i (from waypoint i to i + 1), its :class:`Windows`."""
         self.period = config.period
         self._speed_limits = robot.speed_limits
         self._step_limits = tuple(limit * self.period for limit in robot.accel_limits)
@@ -258,9 +281,9 @@ class ControlLaw:
         (``to_waypoints``: the TCP's plane distances to p_j and p_j-1; ``depths``: their
         :meth:`_depth`, which the pull uses too).
         """
-        times = self.trajectory.times
-        release = min(GATE_RELEASE, (times[index] - times[index - 1]) / 2.0)
-        share = smoothstep((progress - times[index - 1]) / release)
+        share = smoothstep(
+            (progress - self.trajectory.times[index - 1]) / self.windows[index - 1].release
+        )
         depth_next, depth_before = depths
         if clearance < math.inf:
             to_next, to_before = to_waypoints
@@ -363,7 +386,7 @@ class ControlLaw:
         low, high = BEHIND
         hold = 0.0
         if index < len(times) - 1:  # approaching inner waypoint p_j
-            approach = min(GATE_APPROACH, (times[index] - times[index - 1]) / 2.0)
+            approach = self.windows[index - 1].approach
             gate = smoothstep((progress - times[index] + approach) / approach)
             hold = gate * smoothstep((behind - low) / (high - low))
         if index >= 2:  # past inner waypoint p_j-1's time, the arm not yet past it
@@ -383,7 +406,7 @@ class ControlLaw:
         if index + 1 >= len(trajectory.points):
             return (goal[0], goal[1])
         end = trajectory.times[index]
-        handover = min(GOAL_HANDOVER, (end - trajectory.times[index - 1]) / 2.0)
+        handover = self.windows[index - 1].handover
         low, high = GOAL_KEPT
         share = smoothstep((progress - end + handover) / handover) * (
             1.0 - smoothstep((behind - low) / (high - low))

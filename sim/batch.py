@@ -33,14 +33,12 @@ from controller.behaviours import AHEAD_SPEED_FRACTION, PLANNED_REST_SPEED, TURN
 from controller.control_law import (
     BEHIND,
     CLEAR_WAY,
-    GATE_APPROACH,
-    GATE_RELEASE,
-    GOAL_HANDOVER,
     GOAL_KEPT,
     HEIGHT_LEAD,
     PASSED,
     RATE_CHANGE,
     ControlLaw,
+    Windows,
 )
 from controller.coordination import AHEAD_FULL, AHEAD_NONE
 from controller.fuzzy import OUTPUT_NAMES, OUTPUT_TERMS, FuzzyInference, RuleBase
@@ -384,7 +382,10 @@ class _Plans:
     """
 
     def __init__(
-        self, trajectories: Sequence[Trajectory], rooms: Sequence[Sequence[float]]
+        self,
+        trajectories: Sequence[Trajectory],
+        rooms: Sequence[Sequence[float]],
+        windows: Sequence[Sequence[Windows]],
     ) -> None:
         count = len(trajectories)
         self.size = np.array([len(tr.times) for tr in trajectories])
@@ -434,8 +435,8 @@ class _Plans:
                 self.stage_time[row, stage] = (times[index], times[index - 1])
                 self.stage_room[row, stage] = (rooms[row][index], rooms[row][index - 1])
                 self.stage_inner[row, stage] = (index < n - 1, index >= 2)
-                span = (times[index] - times[index - 1]) / 2.0
-                self.stage_gate[row, stage] = (min(GATE_APPROACH, span), min(GATE_RELEASE, span))
+                window = windows[row][index - 1]
+                self.stage_gate[row, stage] = (window.approach, window.release)
                 goal = points[index]
                 self.goal[row, stage] = goal[:2]
                 if index + 1 < n:
@@ -446,9 +447,7 @@ class _Plans:
                         following[1] - goal[1],
                     )
                     self.goal_end[row, stage] = end
-                    self.goal_handover[row, stage] = min(
-                        GOAL_HANDOVER, (end - times[index - 1]) / 2.0
-                    )
+                    self.goal_handover[row, stage] = window.handover
         self.stage = np.zeros(count, dtype=np.intp)
         shape = (3, count)
         self.k0, self.k1, self.k2, self.k3 = (np.zeros(shape) for _ in range(4))
@@ -717,10 +716,15 @@ class _Batch:
         self.count = count
         self.ticks = np.array([round(s.duration / self.period) + 1 for s in scenarios])
         self.start = np.array([s.waypoints[0].t for s in scenarios])
-        # Each scenario's own law gives its plan and its waypoints' free room (ControlLaw's
-        # _free_room, taken from there rather than computed a second way).
+        # Each scenario's own law gives its plan, its waypoints' free room (ControlLaw's
+        # _free_room) and its segments' windows, taken from there rather than computed a
+        # second way.
         laws = [ControlLaw.for_scenario(s) for s in scenarios]
-        self.plans = _Plans([law.trajectory for law in laws], [law._room for law in laws])
+        self.plans = _Plans(
+            [law.trajectory for law in laws],
+            [law._room for law in laws],
+            [law.windows for law in laws],
+        )
         obstacles = [s.obstacle for s in scenarios]
         self.obstacle = _Sections(obstacles)
         self.aim = _Sections(
