@@ -14,6 +14,7 @@ from sim.cli import main as sim_main
 from sim.measures import (
     STOP_MIN_TICKS,
     WAYPOINT_TOLERANCE,
+    MeasureStream,
     compute_measures,
     stop_threshold_and_rests,
 )
@@ -102,6 +103,33 @@ def test_measures_count_stops_and_collisions_from_the_log() -> None:
     assert compute_measures(run.scenario, log).stops == 1
     log["clearance"][middle] = -0.001
     assert not compute_measures(run.scenario, log).collision_free
+
+
+@pytest.mark.parametrize("block", [1, 2, 3, 64, 1000])
+def test_measures_do_not_depend_on_the_blocks_a_log_is_fed_in(block: int) -> None:
+    # The batch simulator feeds its logs in blocks of 64 ticks. Here the arm stops for 3 ticks
+    # that end where a block does (and, fed a tick at a time, at every tick).
+    run = simulate(load_scenario("no_obstacle"))
+    log = RunLog.from_array(run.log.data.copy())
+    start = 5 * 64 - STOP_MIN_TICKS
+    for name in ("theta1_rate", "theta2_rate", "d3_rate"):
+        log[name][start : start + STOP_MIN_TICKS] = 0.0
+    whole = compute_measures(run.scenario, log)
+    assert whole.stops == 1
+    stream = MeasureStream([run.scenario])
+    for first in range(0, len(log), block):
+        rows = slice(first, first + block)
+        columns = {name: log[name][rows, None] for name in MeasureStream.COLUMNS}
+        stream.update(columns, np.ones((len(columns["clock"]), 1), dtype=bool))
+    fed = stream.measures()[0]
+    assert (fed.stops, fed.stop_margin, fed.peak_jerk) == (
+        whole.stops,
+        whole.stop_margin,
+        whole.peak_jerk,
+    )
+    # Sums run in a different order across blocks: equal to the last few bits.
+    assert fed.rms_jerk == pytest.approx(whole.rms_jerk, rel=1e-12)
+    assert fed.path_length == pytest.approx(whole.path_length, rel=1e-12)
 
 
 def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
