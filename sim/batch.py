@@ -35,6 +35,8 @@ from controller.control_law import (
     CLEAR_WAY,
     GOAL_KEPT,
     HEIGHT_LEAD,
+    HEIGHT_LEAD_NEAR,
+    HEIGHT_LEAD_NEAR_AHEAD,
     PASSED,
     RATE_CHANGE,
     ControlLaw,
@@ -1105,13 +1107,19 @@ class _Batch:
     @staticmethod
     def _height_lead(ahead: Mask, to_next: Array, reference_to_next: Array) -> Array:
         """ControlLaw._height_lead: the share of the way from the reference to p_j the TCP has
-        come, once it is HEIGHT_LEAD nearer p_j."""
+        come, once it is HEIGHT_LEAD nearer p_j (or HEIGHT_LEAD_NEAR_AHEAD, near p_j)."""
         ahead_by = reference_to_next - to_next
         low, high = HEIGHT_LEAD
-        leading = ahead & (ahead_by > low)
+        far, near = HEIGHT_LEAD_NEAR
+        ahead_low, ahead_high = HEIGHT_LEAD_NEAR_AHEAD
+        leading = ahead & (ahead_by > 0.0)
         if not leading.any():
             return np.zeros_like(to_next)
-        share = _smoothstep((ahead_by - low) / (high - low))
+        share = np.maximum(
+            _smoothstep((ahead_by - low) / (high - low)),
+            _smoothstep((far - to_next) / (far - near))
+            * _smoothstep((ahead_by - ahead_low) / (ahead_high - ahead_low)),
+        )
         divisor = np.where(leading, reference_to_next, 1.0)
         return np.where(leading, ahead_by / divisor * share, 0.0)
 

@@ -188,6 +188,10 @@ def test_the_height_leads_by_the_share_of_the_way_to_the_waypoint_an_arm_ahead_h
     assert 0.0 < lead(True, 0.025, reference_to_next) < 15.0 / 40.0
     # Heading for p_j-1, not yet passed: the lead is for p_j only.
     assert lead(False, 0.0, reference_to_next) == 0.0
+    # Near p_j it leads from a few millimetres ahead: 1 mm from it, the reference 5 mm short.
+    assert lead(True, 0.001, 0.005) == pytest.approx(0.8)
+    assert lead(True, 0.009, 0.013) == 0.0  # 4 mm ahead, but 9 mm from p_j: not yet
+    assert lead(True, 0.001, 0.002) == 0.0  # 1 mm ahead: not at all
 
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:

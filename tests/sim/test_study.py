@@ -97,6 +97,10 @@ HARD_CASES = [
         # Before the plan waited at a passed waypoint's time until the arm had been to it
         # (ControlLaw._wanted_rate); found on 10,000 of seed 11, never run before.
         (11, 4085, "missed by 2.02 mm: the plan crept on while the final approach came in"),
+        # Before the height led near the waypoint from a few millimetres ahead; found on seed
+        # 13, never run before.
+        (13, 3580, "stopped twice: over the waypoint in the plane, 3.7 mm below, held there"),
+        (17, 5736, "stopped twice: reached a planned rest 0.13 s early, waited over it"),
     )
 ]
 
