@@ -16,7 +16,14 @@ import itertools
 import math
 from dataclasses import dataclass
 
-from controller.behaviours import STOP, Command, avoid_obstacle, choose_side, plan_tracking
+from controller.behaviours import (
+    PLANNED_REST_SPEED,
+    STOP,
+    Command,
+    avoid_obstacle,
+    choose_side,
+    plan_tracking,
+)
 from controller.coordination import AHEAD_NONE, Coordinator, make_coordinator, smoothstep
 from controller.obstacle import ObstacleMeasurement, measure
 from controller.planner import Trajectory, plan_of
@@ -71,6 +78,15 @@ HEIGHT_LEAD_NEAR_AHEAD = (0.002, 0.004)
 """m: see HEIGHT_LEAD_NEAR. From the first millimetre ahead, the lead changed most runs and
 raised the peak jerk of open ones up to 6.5 times: with the reference a millimetre or two from
 p_j, that millimetre is a large share of the way, and the aim jumps."""
+LOOP_RADIUS = 0.003
+"""m: the radius of the circle the final approach takes an arm round, when the straight way
+onto the waypoint would point against the plan (see :meth:`ControlLaw._final_approach`):
+more than PASSED, and the circle stays within 6 mm of the waypoint, well inside its free
+room (a waypoint is at least 20 mm clear of the inflated obstacle)."""
+LOOP_AGAINST = 0.5
+"""How far the straight way onto a waypoint points against the plan's way out of it (the
+cosine of the angle between them, negated) where the final approach is a loop in full. From
+90 degrees the straight way hands over to the loop, and from 120 degrees it loops."""
 GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at
@@ -84,6 +100,18 @@ def capped_along(vx: float, vy: float, nx: float, ny: float, allowed: float) -> 
     if excess > 0.0:
         return vx - excess * nx, vy - excess * ny
     return vx, vy
+
+
+def _leaving(trajectory: Trajectory, index: int) -> tuple[float, float]:
+    """The plan's unit direction of travel in the plane at waypoint ``index``; (0, 0) at the
+    first and last waypoint and where the plan passes slower than PLANNED_REST_SPEED."""
+    if index == 0 or index == len(trajectory.times) - 1:
+        return (0.0, 0.0)
+    velocity = trajectory.evaluate(trajectory.times[index])[1]
+    speed = length(velocity[0], velocity[1])
+    if speed < PLANNED_REST_SPEED:
+        return (0.0, 0.0)
+    return (velocity[0] / speed, velocity[1] / speed)
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,6 +169,9 @@ class ControlLaw:
         self._aim = obstacle.grown(config.ao_pass_margin) if obstacle is not None else None
         self.coordinator = coordinator
         self._room = tuple(self._free_room(point) for point in trajectory.points)
+        self.leaving = tuple(_leaving(trajectory, index) for index in range(len(trajectory.times)))
+        """Per waypoint, the plan's direction of travel in the plane there (unit), or (0, 0)
+        at the ends and where the plan comes to rest: the way an arm on a loop enters it."""
         self.windows = tuple(
             Windows.of_segment(start, end) for start, end in itertools.pairwise(trajectory.times)
         )
@@ -236,8 +267,9 @@ class ControlLaw:
         vx, vy = self._approach_limited(
             blended.v * math.cos(self.heading), blended.v * math.sin(self.heading), measurement
         )
-        vx += pull * (config.position_gain * (waited[0] - tcp[0]) - vx)
-        vy += pull * (config.position_gain * (waited[1] - tcp[1]) - vy)
+        approach_x, approach_y, looping = self._final_approach(waited_index, tcp)
+        vx += pull * (approach_x - vx)
+        vy += pull * (approach_y - vy)
         vx, vy = self._reach_limited(vx, vy, tcp)
         lead = self._height_lead(waited_index == index, to_next, reference_to_next)
         vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
@@ -246,7 +278,12 @@ class ControlLaw:
         rate1, rate2 = joint_rates_for(self.robot, theta1, theta2, vx, vy, config.damping)
         command, limited = self._limit((rate1, rate2, -vz))
 
-        self.heading = wrap_angle(self.heading + blended.omega * self.period)
+        # On a loop the heading turns with the TCP's way round, so that it points along the
+        # plan, not back at the waiting reference, when the arm comes onto the waypoint.
+        steer = pull * looping
+        turn = config.heading_gain * wrap_angle(math.atan2(approach_y, approach_x) - self.heading)
+        omega = blended.omega + steer * (turn - blended.omega)
+        self.heading = wrap_angle(self.heading + omega * self.period)
         self.previous_command = command
         return ControlOutput(
             command=command,
@@ -262,6 +299,52 @@ class ControlLaw:
             heading=self.heading,
             limited=limited,
             progress=progress,
+        )
+
+    def _final_approach(self, index: int, tcp: Point3) -> tuple[float, float, float]:
+        """The planar velocity that brings the TCP onto waypoint ``index`` (the one the plan
+        waits for), and how far it is a loop, 0..1.
+
+        Straight at the waypoint, ``position_gain`` times the way to it, wherever that way
+        does not point against the plan's way out of the waypoint (:attr:`leaving`). An arm on
+        the far side, brought straight back, came onto the waypoint against the plan and had
+        to turn round on it when the plan moved on: a stop (``gen-11-4651``, ``gen-13-2173``,
+        ``gen-13-248``, ``gen-7-3048``). There the arm goes round the circle of LOOP_RADIUS
+        that touches the plan's way at the waypoint on the arm's side, in the sense that
+        comes round to the waypoint along the plan, at the same speed, until the straight
+        way no longer points against the plan; it then comes in across the plan. The two
+        hand over by the angle between the straight way and the plan's way out (LOOP_AGAINST),
+        not by where the arm is: handed over along the plan, the loop's way out and the
+        straight way back cancelled just past the waypoint, and arms that had slid back onto
+        it 2 mm off stood still there instead (``gen-17-4048``).
+        """
+        gain = self.config.position_gain
+        point = self.trajectory.points[index]
+        to_x, to_y = point[0] - tcp[0], point[1] - tcp[1]
+        straight_x, straight_y = gain * to_x, gain * to_y
+        out_x, out_y = self.leaving[index]
+        across = out_x * to_y - out_y * to_x
+        away = length(to_x, to_y)
+        if away == 0.0:
+            return straight_x, straight_y, 0.0
+        share = smoothstep(-(to_x * out_x + to_y * out_y) / away / LOOP_AGAINST)
+        if share == 0.0:
+            return straight_x, straight_y, 0.0
+        side = 1.0 if across <= 0.0 else -1.0
+        centre_x = point[0] - side * LOOP_RADIUS * out_y
+        centre_y = point[1] + side * LOOP_RADIUS * out_x
+        radial_x, radial_y = tcp[0] - centre_x, tcp[1] - centre_y
+        radius = length(radial_x, radial_y)
+        if radius == 0.0:
+            return straight_x, straight_y, 0.0
+        off = (radius - LOOP_RADIUS) / LOOP_RADIUS
+        way_x = (-side * radial_y - off * radial_x) / radius
+        way_y = (side * radial_x - off * radial_y) / radius
+        speed = gain * away / length(way_x, way_y)
+        return (
+            straight_x + share * (speed * way_x - straight_x),
+            straight_y + share * (speed * way_y - straight_y),
+            share,
         )
 
     def _free_room(self, point: tuple[float, ...]) -> float:
@@ -320,12 +403,13 @@ class ControlLaw:
         The TCP is steered to it by ``pull`` = 1 - rate (rate limited, so smoothly) times how
         deep the TCP is in its free room (:meth:`_depth`, 0 far from it): the height loop aims
         that share of the way from the reference's height to the waypoint's, and in the plane
-        the velocity goes that share of the way from the unicycle's to straight at the
-        waypoint (the final approach). A waiting reference stands short of the waypoint, and
-        an arm held to it, or beside the waypoint with a heading it cannot reverse without
-        stopping, would never come within PASSED while the plan waits for just that. Under
-        the unicycle the arm is holonomic, the straight way to the centre of the free room
-        stays in it, and the heading stays PT's, pointing along the plan for when it moves on.
+        the velocity goes that share of the way from the unicycle's to the final approach's
+        (:meth:`_final_approach`: straight at the waypoint, or round it). A waiting reference
+        stands short of the waypoint, and an arm held to it, or beside the waypoint with a
+        heading it cannot reverse without stopping, would never come within PASSED while the
+        plan waits for just that. Under the unicycle the arm is holonomic, the straight way to
+        the centre of the free room and the loop stay in it, and the heading stays PT's
+        (turning with a loop), pointing along the plan for when it moves on.
         """
         return max(index - 1, min(self.reached + 1, index))
 

@@ -37,6 +37,8 @@ from controller.control_law import (
     HEIGHT_LEAD,
     HEIGHT_LEAD_NEAR,
     HEIGHT_LEAD_NEAR_AHEAD,
+    LOOP_AGAINST,
+    LOOP_RADIUS,
     PASSED,
     RATE_CHANGE,
     ControlLaw,
@@ -388,6 +390,7 @@ class _Plans:
         trajectories: Sequence[Trajectory],
         rooms: Sequence[Sequence[float]],
         windows: Sequence[Sequence[Windows]],
+        leaving: Sequence[Sequence[tuple[float, float]]],
     ) -> None:
         count = len(trajectories)
         self.size = np.array([len(tr.times) for tr in trajectories])
@@ -409,6 +412,7 @@ class _Plans:
         self.stage_point = np.zeros((count, width, 2, 3))
         self.stage_time = np.zeros((count, width, 2))
         self.stage_room = np.zeros((count, width, 2))
+        self.stage_leaving = np.zeros((count, width, 2, 2))
         self.stage_inner = np.zeros((count, width, 2), dtype=bool)
         self.stage_gate = np.ones((count, width, 2))
         for row, trajectory in enumerate(trajectories):
@@ -436,6 +440,7 @@ class _Plans:
                 self.stage_point[row, stage] = (points[index], points[index - 1])
                 self.stage_time[row, stage] = (times[index], times[index - 1])
                 self.stage_room[row, stage] = (rooms[row][index], rooms[row][index - 1])
+                self.stage_leaving[row, stage] = (leaving[row][index], leaving[row][index - 1])
                 self.stage_inner[row, stage] = (index < n - 1, index >= 2)
                 window = windows[row][index - 1]
                 self.stage_gate[row, stage] = (window.approach, window.release)
@@ -461,6 +466,7 @@ class _Plans:
         self.point, self.point_before = np.zeros((3, count)), np.zeros((3, count))
         self.time, self.time_before = np.zeros(count), np.zeros(count)
         self.room, self.room_before = np.zeros(count), np.zeros(count)
+        self.leaving, self.leaving_before = np.zeros((2, count)), np.zeros((2, count))
         self.inner, self.inner_before = np.zeros(count, dtype=bool), np.zeros(count, dtype=bool)
         self.approach, self.release = np.zeros(count), np.zeros(count)
         self._load(np.arange(count))
@@ -480,6 +486,7 @@ class _Plans:
         "stage_point",
         "stage_time",
         "stage_room",
+        "stage_leaving",
         "stage_inner",
         "stage_gate",
         "stage",
@@ -509,6 +516,8 @@ class _Plans:
         "slide_now",
         "point",
         "point_before",
+        "leaving",
+        "leaving_before",
     )
 
     def keep(self, rows: Index) -> None:
@@ -535,6 +544,8 @@ class _Plans:
         self.point_before[:, rows] = self.stage_point[rows, stage, 1].T
         self.time[rows], self.time_before[rows] = self.stage_time[rows, stage].T
         self.room[rows], self.room_before[rows] = self.stage_room[rows, stage].T
+        self.leaving[:, rows] = self.stage_leaving[rows, stage, 0].T
+        self.leaving_before[:, rows] = self.stage_leaving[rows, stage, 1].T
         self.inner[rows], self.inner_before[rows] = self.stage_inner[rows, stage].T
         self.approach[rows], self.release[rows] = self.stage_gate[rows, stage].T
 
@@ -726,6 +737,7 @@ class _Batch:
             [law.trajectory for law in laws],
             [law._room for law in laws],
             [law.windows for law in laws],
+            [law.leaving for law in laws],
         )
         obstacles = [s.obstacle for s in scenarios]
         self.obstacle = _Sections(obstacles)
@@ -837,9 +849,10 @@ class _Batch:
         vx, vy = self._approach_limited(
             blended_v * heading_cos, blended_v * heading_sin, measurement
         )
-        gain = config.position_gain
-        vx = vx + pull * (gain * (waited[0] - px) - vx)
-        vy = vy + pull * (gain * (waited[1] - py) - vy)
+        leaving = np.where(waited_is_next, plans.leaving, plans.leaving_before)
+        approach_x, approach_y, looping = self._final_approach(waited, leaving, px, py)
+        vx = vx + pull * (approach_x - vx)
+        vy = vy + pull * (approach_y - vy)
         vx, vy = self._reach_limited(vx, vy, px, py)
         lead = self._height_lead(waited_is_next, to_next, reference_to_next)
         vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
@@ -848,7 +861,11 @@ class _Batch:
         rate1, rate2 = self._joint_rates(theta2, sin1, cos1, sin12, cos12, vx, vy)
         command = self._limit(np.stack([rate1, rate2, -vz]))
 
-        self.heading = _wrap(self.heading + blended_omega * self.period)
+        # ControlLaw.step: on a loop the heading turns with the TCP's way round.
+        steer = pull * looping
+        turn = config.heading_gain * _wrap(np.arctan2(approach_y, approach_x) - self.heading)
+        omega = blended_omega + steer * (turn - blended_omega)
+        self.heading = _wrap(self.heading + omega * self.period)
         self.previous = command
         self._advance_plant(WIRE_COMMAND(command))
         return {
@@ -1103,6 +1120,42 @@ class _Batch:
             k_t[rows] = fuzzy_t
             k_c[rows] = fuzzy_c * relevance * (1.0 - at_waypoint[rows])
         return k_t, k_c
+
+    def _final_approach(
+        self, waited: Array, leaving: Array, px: Array, py: Array
+    ) -> tuple[Array, Array, Array]:
+        """ControlLaw._final_approach: straight at the waited-for waypoint, handing over to
+        the loop round LOOP_RADIUS's circle where that way points against the plan."""
+        gain = self.config.position_gain
+        to_x, to_y = waited[0] - px, waited[1] - py
+        straight_x, straight_y = gain * to_x, gain * to_y
+        out_x, out_y = leaving
+        away = _norm2(to_x, to_y)
+        against = -(to_x * out_x + to_y * out_y) / np.where(away == 0.0, 1.0, away)
+        share = np.where(away == 0.0, 0.0, _smoothstep(against / LOOP_AGAINST))
+        rows = np.flatnonzero(share != 0.0)
+        if not len(rows):
+            return straight_x, straight_y, np.zeros_like(share)
+        tx, ty, ox, oy = to_x[rows], to_y[rows], out_x[rows], out_y[rows]
+        side = np.where(ox * ty - oy * tx <= 0.0, 1.0, -1.0)
+        radial_x = px[rows] - (waited[0, rows] - side * LOOP_RADIUS * oy)
+        radial_y = py[rows] - (waited[1, rows] + side * LOOP_RADIUS * ox)
+        radius = _norm2(radial_x, radial_y)
+        valid = radius != 0.0
+        divisor = np.where(valid, radius, 1.0)
+        off = (radius - LOOP_RADIUS) / LOOP_RADIUS
+        way_x = (-side * radial_y - off * radial_x) / divisor
+        way_y = (side * radial_x - off * radial_y) / divisor
+        way_length = _norm2(way_x, way_y)
+        speed = gain * away[rows] / np.where(valid, way_length, 1.0)
+        share_rows = np.where(valid, share[rows], 0.0)
+        sx, sy = straight_x[rows], straight_y[rows]
+        approach_x, approach_y = straight_x.copy(), straight_y.copy()
+        approach_x[rows] = sx + share_rows * (speed * way_x - sx)
+        approach_y[rows] = sy + share_rows * (speed * way_y - sy)
+        looping = np.zeros_like(share)
+        looping[rows] = share_rows
+        return approach_x, approach_y, looping
 
     @staticmethod
     def _height_lead(ahead: Mask, to_next: Array, reference_to_next: Array) -> Array:

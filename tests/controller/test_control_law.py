@@ -15,7 +15,7 @@ from controller.behaviours import (
     avoid_obstacle,
     plan_tracking,
 )
-from controller.control_law import RATE_CHANGE, ControlLaw
+from controller.control_law import PASSED, RATE_CHANGE, ControlLaw
 from controller.coordination import ConventionalCoordinator
 from controller.obstacle import measure
 from protocol.config import ControllerConfig
@@ -192,6 +192,61 @@ def test_the_height_leads_by_the_share_of_the_way_to_the_waypoint_an_arm_ahead_h
     assert lead(True, 0.001, 0.005) == pytest.approx(0.8)
     assert lead(True, 0.009, 0.013) == 0.0  # 4 mm ahead, but 9 mm from p_j: not yet
     assert lead(True, 0.001, 0.002) == 0.0  # 1 mm ahead: not at all
+
+
+def _come_onto_waypoint(
+    law: ControlLaw, index: int, along: float, across: float
+) -> tuple[float, float, list[float]]:
+    """Move a point that goes at the final approach's velocity towards waypoint ``index``
+    from ``along`` past it on the plan's way out and ``across`` to its left, until it is
+    within PASSED of it: its velocity then (along and across the plan, m/s) and how far it
+    was from the waypoint at each step. Never faster than straight at it."""
+    out_x, out_y = law.leaving[index]
+    point = law.trajectory.points[index]
+    x = point[0] + along * out_x - across * out_y
+    y = point[1] + along * out_y + across * out_x
+    distances = []
+    for _ in range(5000):
+        vx, vy, _ = law._final_approach(index, (x, y, point[2]))
+        distance = math.hypot(point[0] - x, point[1] - y)
+        distances.append(distance)
+        assert math.hypot(vx, vy) <= CONFIG.position_gain * distance * (1.0 + 1e-12)
+        if distance <= PASSED:
+            return vx * out_x + vy * out_y, out_x * vy - out_y * vx, distances
+        x, y = x + vx * CONFIG.period, y + vy * CONFIG.period
+    raise AssertionError("never came onto the waypoint")
+
+
+@pytest.mark.parametrize(
+    ("along", "across"), [(0.005, 0.0), (0.004, -0.001), (0.003, 0.002), (0.008, -0.003)]
+)
+def test_an_arm_past_the_waypoint_is_looped_round_not_brought_back_against_the_plan(
+    along: float, across: float
+) -> None:
+    # Straight back, it would come onto the waypoint against the plan and have to turn round
+    # on it when the plan moves on (gen-11-4651, gen-13-2173: stops).
+    law = ControlLaw.for_scenario(load_scenario("reference"))
+    speed_along, speed_across, distances = _come_onto_waypoint(law, 1, along, across)
+    # Across the plan (within about 10 degrees), not against it.
+    assert speed_along > -0.2 * abs(speed_across)
+    assert min(distances[:-1]) > PASSED
+    assert max(distances) > math.hypot(along, across)  # round the waypoint, not at it
+
+
+def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
+    law = ControlLaw.for_scenario(load_scenario("reference"))
+    speed_along, speed_across, distances = _come_onto_waypoint(law, 1, -0.004, 0.002)
+    assert speed_across == pytest.approx(-0.5 * speed_along)  # on the straight line in
+    assert distances == sorted(distances, reverse=True)
+    # The last waypoint, where the plan stops, has no way out: straight from any side.
+    last = len(law.trajectory.points) - 1
+    assert law.leaving[last] == (0.0, 0.0)
+    point = law.trajectory.points[last]
+    tcp = (point[0] + 0.004, point[1] - 0.001, point[2])
+    approach = law._final_approach(last, tcp)
+    assert approach == pytest.approx(
+        (CONFIG.position_gain * -0.004, CONFIG.position_gain * 0.001, 0.0)
+    )
 
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
