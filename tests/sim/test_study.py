@@ -97,20 +97,30 @@ HARD_CASES = [
         # Before the plan waited at a passed waypoint's time until the arm had been to it
         # (ControlLaw._wanted_rate); found on 10,000 of seed 11, never run before.
         (11, 4085, "missed by 2.02 mm: the plan crept on while the final approach came in"),
-        # Before the height led near the waypoint from a few millimetres ahead; found on seed
-        # 13, never run before.
+        # Before the height led near the waypoint from a few millimetres ahead
+        # (ControlLaw._height_lead); found on seeds 13, 17, 19, 23 and 29, each never run
+        # before.
         (13, 3580, "stopped twice: over the waypoint in the plane, 3.7 mm below, held there"),
         (17, 5736, "stopped twice: reached a planned rest 0.13 s early, waited over it"),
+        (23, 3281, "stopped: on the waypoint in the plane 0.14 s early, 1.75 mm above it"),
+        (19, 7115, "stopped: on the waypoint in the plane 0.26 s early, 1.3 mm below it"),
+        (29, 136, "stopped: on the waypoint in the plane 0.22 s early, 1.65 mm below it"),
+        (23, 2691, "stopped: came onto it from beyond, 1.3 mm above; the loop helps it more"),
         # Before the final approach looped round a waypoint it would have come onto against
-        # the plan (ControlLaw._final_approach); found on seeds never run before.
+        # the plan (ControlLaw._final_approach); found on seeds 7, 11 and 13, each never run
+        # before.
         (11, 4651, "stopped: came onto the waypoint from beyond it, turned round on it"),
         (13, 2173, "stopped: the same"),
         (13, 248, "stopped: the same where the plan itself turns 160 degrees"),
         (7, 3048, "stopped: passed 2.08 mm off, overshot by 3 mm and was slid back"),
-        # Seed 19, never run before this change: three more of the first kind.
+        # Seed 19, never run before this change: three more of that kind.
         (19, 696, "stopped: came onto the waypoint from beyond it, turned round on it"),
         (19, 8214, "stopped: the same"),
         (19, 8816, "stopped: the same (not counted by the batch: measures' block bug)"),
+        # Seeds 23 and 29, never run before this change: three more.
+        (23, 5295, "stopped: came onto the waypoint from beyond it, turned round on it"),
+        (29, 1914, "stopped: the same"),
+        (29, 5204, "stopped twice: the same"),
     )
 ]
 
