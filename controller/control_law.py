@@ -241,7 +241,8 @@ class ControlLaw:
         depth_next, depth_before = self._depth(index, to_next), self._depth(index - 1, to_before)
         waited_index = self._waited_for(index)
         waited = self.trajectory.points[waited_index]
-        pull = (1.0 - rate) * (depth_next if waited_index == index else depth_before)
+        waiting_next = waited_index == index
+        pull = (1.0 - rate) * (depth_next if waiting_next else depth_before)
         goal = self._goal(progress, index, behind)
         measurement = measure(self.obstacle, tcp, goal, config.sensing_range, self.heading)
 
@@ -267,11 +268,13 @@ class ControlLaw:
         vx, vy = self._approach_limited(
             blended.v * math.cos(self.heading), blended.v * math.sin(self.heading), measurement
         )
-        approach_x, approach_y, looping = self._final_approach(waited_index, tcp)
+        approach_x, approach_y, looping = self._final_approach(
+            waited_index, tcp, to_next if waiting_next else to_before
+        )
         vx += pull * (approach_x - vx)
         vy += pull * (approach_y - vy)
         vx, vy = self._reach_limited(vx, vy, tcp)
-        lead = self._height_lead(waited_index == index, to_next, reference_to_next)
+        lead = self._height_lead(waiting_next, to_next, reference_to_next)
         vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
             reference[2] + max(pull, lead) * (waited[2] - reference[2]) - tcp[2]
         )
@@ -280,9 +283,10 @@ class ControlLaw:
 
         # On a loop the heading turns with the TCP's way round, so that it points along the
         # plan, not back at the waiting reference, when the arm comes onto the waypoint.
-        steer = pull * looping
-        turn = config.heading_gain * wrap_angle(math.atan2(approach_y, approach_x) - self.heading)
-        omega = blended.omega + steer * (turn - blended.omega)
+        omega = blended.omega
+        if looping > 0.0:
+            turn = wrap_angle(math.atan2(approach_y, approach_x) - self.heading)
+            omega += pull * looping * (config.heading_gain * turn - omega)
         self.heading = wrap_angle(self.heading + omega * self.period)
         self.previous_command = command
         return ControlOutput(
@@ -301,9 +305,9 @@ class ControlLaw:
             progress=progress,
         )
 
-    def _final_approach(self, index: int, tcp: Point3) -> tuple[float, float, float]:
+    def _final_approach(self, index: int, tcp: Point3, away: float) -> tuple[float, float, float]:
         """The planar velocity that brings the TCP onto waypoint ``index`` (the one the plan
-        waits for), and how far it is a loop, 0..1.
+        waits for; ``away``: the TCP's plane distance to it), and how far it is a loop, 0..1.
 
         Straight at the waypoint, ``position_gain`` times the way to it, wherever that way
         does not point against the plan's way out of the waypoint (:attr:`leaving`). An arm on
@@ -324,7 +328,6 @@ class ControlLaw:
         straight_x, straight_y = gain * to_x, gain * to_y
         out_x, out_y = self.leaving[index]
         across = out_x * to_y - out_y * to_x
-        away = length(to_x, to_y)
         if away == 0.0:
             return straight_x, straight_y, 0.0
         share = smoothstep(-(to_x * out_x + to_y * out_y) / away / LOOP_AGAINST)

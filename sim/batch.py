@@ -850,7 +850,8 @@ class _Batch:
             blended_v * heading_cos, blended_v * heading_sin, measurement
         )
         leaving = np.where(waited_is_next, plans.leaving, plans.leaving_before)
-        approach_x, approach_y, looping = self._final_approach(waited, leaving, px, py)
+        away = np.where(waited_is_next, to_next, to_before)
+        approach_x, approach_y, looping = self._final_approach(waited, leaving, away, px, py)
         vx = vx + pull * (approach_x - vx)
         vy = vy + pull * (approach_y - vy)
         vx, vy = self._reach_limited(vx, vy, px, py)
@@ -1122,15 +1123,15 @@ class _Batch:
         return k_t, k_c
 
     def _final_approach(
-        self, waited: Array, leaving: Array, px: Array, py: Array
+        self, waited: Array, leaving: Array, away: Array, px: Array, py: Array
     ) -> tuple[Array, Array, Array]:
-        """ControlLaw._final_approach: straight at the waited-for waypoint, handing over to
-        the loop round LOOP_RADIUS's circle where that way points against the plan."""
+        """ControlLaw._final_approach: straight at the waited-for waypoint (``away`` from the
+        TCP in the plane), handing over to the loop round LOOP_RADIUS's circle where that way
+        points against the plan."""
         gain = self.config.position_gain
         to_x, to_y = waited[0] - px, waited[1] - py
         straight_x, straight_y = gain * to_x, gain * to_y
         out_x, out_y = leaving
-        away = _norm2(to_x, to_y)
         against = -(to_x * out_x + to_y * out_y) / np.where(away == 0.0, 1.0, away)
         share = np.where(away == 0.0, 0.0, _smoothstep(against / LOOP_AGAINST))
         rows = np.flatnonzero(share != 0.0)

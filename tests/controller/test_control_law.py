@@ -207,8 +207,8 @@ def _come_onto_waypoint(
     y = point[1] + along * out_y + across * out_x
     distances = []
     for _ in range(5000):
-        vx, vy, _ = law._final_approach(index, (x, y, point[2]))
         distance = math.hypot(point[0] - x, point[1] - y)
+        vx, vy, _ = law._final_approach(index, (x, y, point[2]), distance)
         distances.append(distance)
         assert math.hypot(vx, vy) <= CONFIG.position_gain * distance * (1.0 + 1e-12)
         if distance <= PASSED:
@@ -243,7 +243,7 @@ def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
     assert law.leaving[last] == (0.0, 0.0)
     point = law.trajectory.points[last]
     tcp = (point[0] + 0.004, point[1] - 0.001, point[2])
-    approach = law._final_approach(last, tcp)
+    approach = law._final_approach(last, tcp, math.hypot(0.004, 0.001))
     assert approach == pytest.approx(
         (CONFIG.position_gain * -0.004, CONFIG.position_gain * 0.001, 0.0)
     )
