@@ -327,13 +327,12 @@ class ControlLaw:
         to_x, to_y = point[0] - tcp[0], point[1] - tcp[1]
         straight_x, straight_y = gain * to_x, gain * to_y
         out_x, out_y = self.leaving[index]
-        across = out_x * to_y - out_y * to_x
         if away == 0.0:
             return straight_x, straight_y, 0.0
         share = smoothstep(-(to_x * out_x + to_y * out_y) / away / LOOP_AGAINST)
         if share == 0.0:
             return straight_x, straight_y, 0.0
-        side = 1.0 if across <= 0.0 else -1.0
+        side = 1.0 if out_x * to_y - out_y * to_x <= 0.0 else -1.0
         centre_x = point[0] - side * LOOP_RADIUS * out_y
         centre_y = point[1] + side * LOOP_RADIUS * out_x
         radial_x, radial_y = tcp[0] - centre_x, tcp[1] - centre_y

@@ -863,9 +863,13 @@ class _Batch:
         command = self._limit(np.stack([rate1, rate2, -vz]))
 
         # ControlLaw.step: on a loop the heading turns with the TCP's way round.
-        steer = pull * looping
-        turn = config.heading_gain * _wrap(np.arctan2(approach_y, approach_x) - self.heading)
-        omega = blended_omega + steer * (turn - blended_omega)
+        omega = blended_omega
+        rows = np.flatnonzero(looping > 0.0)
+        if len(rows):
+            turn = _wrap(np.arctan2(approach_y[rows], approach_x[rows]) - self.heading[rows])
+            steer = pull[rows] * looping[rows]
+            omega = omega.copy()
+            omega[rows] += steer * (config.heading_gain * turn - omega[rows])
         self.heading = _wrap(self.heading + omega * self.period)
         self.previous = command
         self._advance_plant(WIRE_COMMAND(command))
