@@ -1279,6 +1279,18 @@ class BatchRun:
     """The largest k_C of the run (1 when the conventional switch flipped to AO)."""
 
 
+def trace_batch(scenarios: Sequence[Scenario], modes: Sequence[Mode]) -> list[dict[str, Array]]:
+    """Every tick's log columns of each run (``modes``: one per scenario), for comparing the
+    batch with the scalar law tick by tick; the runs are kept in the arrays to the end."""
+    with np.errstate(all="ignore"):
+        batch = _Batch(scenarios, modes, None)
+        rows = [batch.step(tick) for tick in range(int(batch.ticks.max()))]
+    return [
+        {name: np.array([row[name][index] for row in rows[:ticks]]) for name in rows[0]}
+        for index, ticks in enumerate(batch.ticks.tolist())
+    ]
+
+
 def simulate_batch(
     scenarios: Sequence[Scenario],
     mode: Mode | Sequence[Mode] | None = None,
