@@ -8,11 +8,13 @@ The TCP is steered in the XY plane like a unicycle with a virtual heading phi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
+from controller.coordination import AHEAD_NONE
 from controller.obstacle import ObstacleMeasurement
 from protocol.config import ControllerConfig
-from protocol.geometry import EllipticCylinder, length, wrap_angle
+from protocol.geometry import Section, length, nearest_point, tangent_points, to_local, wrap_angle
+from protocol.ops import Ops, Real
 
 TURN_LEFT = 1
 TURN_RIGHT = -1
@@ -22,24 +24,24 @@ AHEAD_SPEED_FRACTION = 0.25
 """A TCP ahead of the moving plan slows down to this fraction of the planned speed."""
 
 
-@dataclass(frozen=True, slots=True)
-class Command:
+class Command(NamedTuple):
     """A unicycle command: speed along the heading (m/s) and turn rate (rad/s, CCW > 0)."""
 
-    v: float
-    omega: float
+    v: Real
+    omega: Real
 
 
 STOP = Command(0.0, 0.0)
 
 
 def plan_tracking(
+    ops: Ops,
     config: ControllerConfig,
-    heading: float,
-    position: tuple[float, float],
-    reference: tuple[float, float],
-    reference_velocity: tuple[float, float],
-    reference_acceleration: tuple[float, float],
+    heading: Real,
+    position: tuple[Real, Real],
+    reference: tuple[Real, Real],
+    reference_velocity: tuple[Real, Real],
+    reference_acceleration: tuple[Real, Real],
 ) -> Command:
     """PT: follow the planned point; eq. 26's (v_T, omega_T).
 
@@ -53,39 +55,76 @@ def plan_tracking(
     """
     error_x, error_y = reference[0] - position[0], reference[1] - position[1]
     vx, vy = reference_velocity
-    planned_speed = length(vx, vy)
-    if planned_speed < PLANNED_REST_SPEED:
-        distance = length(error_x, error_y)
-        if distance < 1e-9:
-            return STOP
-        error = wrap_angle(math.atan2(error_y, error_x) - heading)
-        speed = min(config.position_gain * distance, config.speed_max)
-        return Command(speed * max(math.cos(error), 0.0), config.heading_gain * error)
-    along_x, along_y = vx / planned_speed, vy / planned_speed
+    planned_speed = length(ops, vx, vy)
+    at_rest = planned_speed < PLANNED_REST_SPEED
+    divisor = ops.where(at_rest, 1.0, planned_speed)
+    along_x, along_y = vx / divisor, vy / divisor
     lag = error_x * along_x + error_y * along_y
     offset = along_x * error_y - along_y * error_x
-    along = max(planned_speed + config.position_gain * lag, AHEAD_SPEED_FRACTION * planned_speed)
+    along = ops.max(
+        planned_speed + config.position_gain * lag, AHEAD_SPEED_FRACTION * planned_speed
+    )
     across = config.position_gain * offset
-    speed = min(length(along, across), config.speed_max)
-    target = math.atan2(vy, vx) + math.atan2(across, along)
+    speed = ops.min(length(ops, along, across), config.speed_max)
+    target = ops.atan2(vy, vx) + ops.atan2(across, along)
     ax, ay = reference_acceleration
-    feedforward = (vx * ay - vy * ax) / (planned_speed * planned_speed)
+    feedforward = (vx * ay - vy * ax) / (divisor * divisor)
     error = wrap_angle(target - heading)
-    return Command(speed * max(math.cos(error), 0.0), feedforward + config.heading_gain * error)
-
-
-def choose_side(measurement: ObstacleMeasurement) -> int:
-    """AO's choice between TL and TR: away from the side the obstacle is nearer on."""
-    return TURN_LEFT if measurement.d_left >= measurement.d_right else TURN_RIGHT
+    v = speed * ops.max(ops.cos(error), 0.0)
+    omega = feedforward + config.heading_gain * error
+    if ops.any(at_rest):
+        distance = length(ops, error_x, error_y)
+        error = wrap_angle(ops.atan2(error_y, error_x) - heading)
+        speed = ops.min(config.position_gain * distance, config.speed_max)
+        still = distance < 1e-9
+        v = ops.where(at_rest, ops.where(still, 0.0, speed * ops.max(ops.cos(error), 0.0)), v)
+        omega = ops.where(at_rest, ops.where(still, 0.0, config.heading_gain * error), omega)
+    return Command(v, omega)
 
 
 def avoid_obstacle(
+    ops: Ops,
     config: ControllerConfig,
-    aim: EllipticCylinder,
+    aim: Section,
     measurement: ObstacleMeasurement,
-    side: int,
-    heading: float,
-    position: tuple[float, float],
+    min_distance: Real,
+    side: Real,
+    heading: Real,
+    position: tuple[Real, Real],
+) -> tuple[Command, Real]:
+    """AO with its TL/TR choice (``side``: +1 TL, -1 TR, 0 none yet), and the side kept.
+
+    AO acts while the obstacle is present and ahead, or the TCP moves towards it (or is
+    inside it); it chooses its side when it starts to act, away from the side the obstacle is
+    nearer on, keeps it while it acts, and forgets it when it stops.
+    """
+    engaged = measurement.present & ops.not_(
+        (ops.max(measurement.ahead, measurement.toward) <= AHEAD_NONE)
+        & (measurement.clearance > 0.0)
+    )
+    chosen = ops.where(measurement.d_left >= measurement.d_right, TURN_LEFT, TURN_RIGHT)
+    side = ops.where(engaged, ops.where(side == 0, chosen, side), 0)
+    command = ops.branch(
+        engaged,
+        lambda *inputs: _avoid(ops, config, *inputs),
+        STOP,
+        aim,
+        side,
+        heading,
+        position,
+        min_distance,
+    )
+    return command, side
+
+
+def _avoid(
+    ops: Ops,
+    config: ControllerConfig,
+    aim: Section,
+    side: Real,
+    heading: Real,
+    position: tuple[Real, Real],
+    min_distance: Real,
 ) -> Command:
     """AO (TL when ``side`` is +1, TR when -1): eq. 28-29.
 
@@ -96,36 +135,46 @@ def avoid_obstacle(
     settle on the tangent (pure pursuit: curvature 2 sin beta / d) instead of turning
     without end.
     """
-    if not measurement.present:
-        return STOP
     px, py = position
-    edge_angle = _edge_direction(aim, side, px, py)
-    beta = side * wrap_angle(edge_angle - heading)
-    distance = max(measurement.min_distance, 1e-3)
-    along = distance * math.cos(beta)
-    v = config.ao_speed_min + (config.ao_speed_max - config.ao_speed_min) * math.tanh(
-        max(along, 0.0) / config.ao_speed_distance
+    lx, ly = to_local(aim, px, py)
+    outside, left_x, left_y, right_x, right_y = tangent_points(ops, aim, px, py, lx, ly)
+    left_hand = side == TURN_LEFT
+    edge_x = ops.where(left_hand, left_x, right_x)
+    edge_y = ops.where(left_hand, left_y, right_y)
+    edge_angle = ops.branch(
+        ops.not_(outside),
+        lambda *inputs: _along_boundary(ops, *inputs),
+        ops.atan2(edge_y - py, edge_x - px),
+        aim,
+        side,
+        px,
+        py,
+        lx,
+        ly,
     )
-    omega = config.ao_turn_max * math.tanh(math.sin(beta) / distance / config.ao_turn_scale)
+    beta = side * wrap_angle(edge_angle - heading)
+    distance = ops.max(min_distance, 1e-3)
+    along = distance * ops.cos(beta)
+    v = config.ao_speed_min + (config.ao_speed_max - config.ao_speed_min) * ops.tanh(
+        ops.max(along, 0.0) / config.ao_speed_distance
+    )
+    omega = config.ao_turn_max * ops.tanh(ops.sin(beta) / distance / config.ao_turn_scale)
     return Command(v, side * omega)
 
 
-def _edge_direction(aim: EllipticCylinder, side: int, px: float, py: float) -> float:
-    """Direction from the TCP to the chosen edge of ``aim``.
-
-    Inside ``aim`` there is no tangent: go along the boundary through the TCP, on the
-    chosen side, tilted outwards by how deep the TCP is.
-    """
-    edges = aim.tangent_points(px, py)
-    if edges is not None:
-        edge = edges[0] if side == TURN_LEFT else edges[1]
-        return math.atan2(edge[1] - py, edge[0] - px)
-    depth, nearest = aim.nearest_point(px, py)
-    normal_x, normal_y = nearest[0] - px, nearest[1] - py
-    if depth >= 0.0:
-        normal_x, normal_y = -normal_x, -normal_y
-    if normal_x == 0.0 and normal_y == 0.0:
-        normal_x, normal_y = px - aim.x, py - aim.y
-    along_boundary = math.atan2(normal_y, normal_x) - side * math.pi / 2.0
-    tilt = min(1.0, abs(depth) / max(aim.inflation, 1e-3)) * math.pi / 4.0
+def _along_boundary(
+    ops: Ops, aim: Section, side: Real, px: Real, py: Real, lx: Real, ly: Real
+) -> Real:
+    """Inside ``aim`` there is no tangent: the way to go is along the boundary through the
+    TCP, on the chosen side, tilted outwards by how deep the TCP is."""
+    depth, nearest_x, nearest_y = nearest_point(ops, aim, lx, ly)
+    normal_x, normal_y = nearest_x - px, nearest_y - py
+    flip = depth >= 0.0
+    normal_x = ops.where(flip, -normal_x, normal_x)
+    normal_y = ops.where(flip, -normal_y, normal_y)
+    zero = (normal_x == 0.0) & (normal_y == 0.0)
+    normal_x = ops.where(zero, px - aim.x, normal_x)
+    normal_y = ops.where(zero, py - aim.y, normal_y)
+    along_boundary = ops.atan2(normal_y, normal_x) - side * math.pi / 2.0
+    tilt = ops.min(1.0, abs(depth) / ops.max(aim.inflation, 1e-3)) * math.pi / 4.0
     return along_boundary + side * tilt

@@ -1,94 +1,109 @@
 """Module FC: how PT and AO are blended, eq. 30: v_E = k_T v_T + k_C v_A (same for omega).
 
-Two coordinators share one interface, ``weights(measurement, at_waypoint) -> (k_T, k_C)``:
-:class:`FuzzyCoordinator` (Table 2) and :class:`ConventionalCoordinator`, the hard switch of
-the paper's Fig. 8. ``at_waypoint`` (0..1) is how deep the TCP is in the free room around the
-waypoint it heads for, where the straight way to it cannot touch the obstacle: 1 means AO is
-not needed there (``ControlLaw`` measures it).
+Two coordinators: the fuzzy one of Table 2 and the conventional hard switch of the paper's
+Fig. 8, both in :func:`weights`, which picks per run (the batch study mixes them).
+``at_waypoint`` (0..1) is how deep the TCP is in the free room around the waypoint it heads
+for, where the straight way to it cannot touch the obstacle: 1 means AO is not needed there
+(the control law measures it).
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from dataclasses import dataclass
 
-from controller.fuzzy import FuzzyInference, RuleBase
+from controller.fuzzy import FuzzyInference, RuleBase, infer
 from controller.obstacle import ObstacleMeasurement, absent
-from protocol.scenario import Mode
+from protocol.ops import Mask, Ops, Real
 
-# How far ahead an obstacle is, as the cosine of the angle between "towards p_j" and
-# "towards the obstacle": AO counts fully above AHEAD_FULL and not at all below AHEAD_NONE,
-# where the controller also forgets its TL/TR choice.
 AHEAD_FULL = 0.3
+"""How far ahead an obstacle is, as the cosine of the angle between "towards p_j" (or the way
+the TCP moves) and "towards the obstacle", from which AO counts fully."""
 AHEAD_NONE = -0.2
+"""Below this AO does not count at all, and the controller forgets its TL/TR choice."""
 
 
-class Coordinator(Protocol):
-    def weights(
-        self, measurement: ObstacleMeasurement, at_waypoint: float = 0.0
-    ) -> tuple[float, float]: ...
+@dataclass(frozen=True, slots=True)
+class Coordination:
+    """What both coordinators need: the fuzzy rule base's inference, the sensing range and
+    the conventional switch's distance."""
 
+    inference: FuzzyInference
+    sensing_range: float
+    switch_distance: float
+    k_t_without_obstacle: float
+    """The fuzzy k_T where nothing is in reach (its inputs then never change)."""
 
-class FuzzyCoordinator:
-    """k_T and k_C from min(d_L, d_R) and beta through the rule base of Table 2.
-
-    Table 2 speaks of an obstacle that matters; k_C is scaled by how much it does, so that
-    AO fades in and out instead of switching: fully within half the sensing range, not at
-    all at the range; fully while the obstacle is ahead, towards p_j or the way the TCP moves
-    (or the TCP is inside it), fading as it falls behind (smoothsteps of the distance and of
-    the larger of ``measurement.ahead`` and ``measurement.toward``).
-    """
-
-    def __init__(self, sensing_range: float, rule_base: RuleBase | None = None) -> None:
-        self.sensing_range = sensing_range
-        self.inference = FuzzyInference(rule_base or RuleBase.load())
+    @classmethod
+    def of(
+        cls, sensing_range: float, switch_distance: float, rule_base: RuleBase | None = None
+    ) -> Coordination:
+        inference = FuzzyInference(rule_base or RuleBase.load())
         nothing = absent(sensing_range)
-        self._k_t_without_obstacle = self.inference.weights(nothing.min_distance, nothing.beta)[0]
-
-    def weights(
-        self, measurement: ObstacleMeasurement, at_waypoint: float = 0.0
-    ) -> tuple[float, float]:
-        if not measurement.present:  # the inputs of "no obstacle" never change: k_C is 0
-            return self._k_t_without_obstacle, 0.0
-        k_t, k_c = self.inference.weights(measurement.min_distance, measurement.beta)
-        return k_t, k_c * self.relevance(measurement) * (1.0 - at_waypoint)
-
-    def relevance(self, measurement: ObstacleMeasurement) -> float:
-        """How much a present obstacle matters, 0..1 (see the class docstring)."""
-        half = self.sensing_range / 2.0
-        relevance = smoothstep((self.sensing_range - measurement.min_distance) / half)
-        if measurement.clearance > 0.0:
-            ahead = max(measurement.ahead, measurement.toward)
-            relevance *= smoothstep((ahead - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
-        return relevance
+        k_t = inference.weights(nothing.min_distance, nothing.beta)[0]
+        return cls(inference, sensing_range, switch_distance, k_t)
 
 
-class ConventionalCoordinator:
-    """PT alone, or AO alone while an obstacle ahead is closer than ``switch_distance`` (and the
-    TCP is not in the free room of its waypoint)."""
+def weights(
+    ops: Ops,
+    coordination: Coordination,
+    fuzzy: Mask,
+    measurement: ObstacleMeasurement,
+    min_distance: Real,
+    at_waypoint: Real,
+) -> tuple[Real, Real]:
+    """k_T and k_C: Table 2's where ``fuzzy``, else the hard switch.
 
-    def __init__(self, switch_distance: float) -> None:
-        self.switch_distance = switch_distance
+    Fuzzy: Table 2 speaks of an obstacle that matters; k_C is scaled by how much it does, so
+    that AO fades in and out instead of switching: fully within half the sensing range, not
+    at all at the range; fully while the obstacle is ahead, towards p_j or the way the TCP
+    moves (or the TCP is inside it), fading as it falls behind (smoothsteps of the distance
+    and of the larger of ``ahead`` and ``toward``); and not at all deep in a waypoint's free
+    room. Conventional: PT alone, or AO alone while an obstacle ahead is closer than the
+    switch distance (and the TCP is not in the free room of its waypoint).
+    """
+    present, clearance = measurement.present, measurement.clearance
+    switched = (
+        present
+        & (measurement.ahead > 0.0)
+        & (clearance < coordination.switch_distance)
+        & (at_waypoint == 0.0)
+    )
+    k_t, k_c = ops.branch(
+        present & fuzzy,
+        lambda *inputs: _fuzzy_weights(ops, coordination, *inputs),
+        (coordination.k_t_without_obstacle, 0.0),
+        min_distance,
+        measurement.beta,
+        clearance,
+        ops.max(measurement.ahead, measurement.toward),
+        at_waypoint,
+    )
+    return (
+        ops.where(fuzzy, k_t, ops.where(switched, 0.0, 1.0)),
+        ops.where(fuzzy, k_c, ops.where(switched, 1.0, 0.0)),
+    )
 
-    def weights(
-        self, measurement: ObstacleMeasurement, at_waypoint: float = 0.0
-    ) -> tuple[float, float]:
-        if (
-            measurement.present
-            and measurement.ahead > 0.0
-            and measurement.clearance < self.switch_distance
-            and at_waypoint == 0.0
-        ):
-            return (0.0, 1.0)
-        return (1.0, 0.0)
+
+def _fuzzy_weights(
+    ops: Ops,
+    coordination: Coordination,
+    min_distance: Real,
+    beta: Real,
+    clearance: Real,
+    facing: Real,
+    at_waypoint: Real,
+) -> tuple[Real, Real]:
+    """:func:`weights` of the fuzzy coordinator with an obstacle present."""
+    k_t, k_c = infer(ops, coordination.inference, min_distance, beta)
+    sensing_range = coordination.sensing_range
+    half = sensing_range / 2.0
+    relevance = smoothstep(ops, (sensing_range - min_distance) / half)
+    fading = smoothstep(ops, (facing - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
+    relevance = ops.where(clearance > 0.0, relevance * fading, relevance)
+    return k_t, k_c * relevance * (1.0 - at_waypoint)
 
 
-def make_coordinator(mode: Mode, switch_distance: float, sensing_range: float) -> Coordinator:
-    if mode is Mode.FUZZY:
-        return FuzzyCoordinator(sensing_range)
-    return ConventionalCoordinator(switch_distance)
-
-
-def smoothstep(x: float) -> float:
+def smoothstep(ops: Ops, x: Real) -> Real:
     """0 below 0, 1 above 1, and 3x^2 - 2x^3 between: a ramp with flat ends."""
-    x = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
+    x = ops.min(ops.max(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x)

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.errors import ConfigError
+from protocol.ops import SCALAR, Ops, Real
 
 INPUT_NAMES = ("min_distance", "beta")
 OUTPUT_NAMES = ("k_T", "k_C")
@@ -37,13 +38,7 @@ class Trapezoid:
     d: float
 
     def __call__(self, x: float) -> float:
-        if x < self.a or x > self.d:
-            return 0.0
-        if x < self.b:
-            return (x - self.a) / (self.b - self.a)
-        if x <= self.c:
-            return 1.0
-        return (self.d - x) / (self.d - self.c)
+        return float(membership(SCALAR, x, self.a, self.b, self.c, self.d))
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,14 +159,14 @@ class FuzzyInference:
     def __init__(self, rule_base: RuleBase) -> None:
         self.rule_base = rule_base
         distance, beta = rule_base.inputs["min_distance"], rule_base.inputs["beta"]
-        self._distance_points = tuple((t.a, t.b, t.c, t.d) for t in distance.terms.values())
-        self._beta_points = tuple((t.a, t.b, t.c, t.d) for t in beta.terms.values())
-        self._distance_range = distance.universe
-        self._beta_range = beta.universe
+        self.distance_terms = tuple((t.a, t.b, t.c, t.d) for t in distance.terms.values())
+        self.beta_terms = tuple((t.a, t.b, t.c, t.d) for t in beta.terms.values())
+        self.distance_range = distance.universe
+        self.beta_range = beta.universe
         distance_index = {name: i for i, name in enumerate(distance.terms)}
         beta_index = {name: i for i, name in enumerate(beta.terms)}
         output_index = {name: i for i, name in enumerate(OUTPUT_TERMS)}
-        self._rules = tuple(
+        self.rules = tuple(
             (
                 distance_index[rule.min_distance],
                 beta_index[rule.beta],
@@ -180,48 +175,54 @@ class FuzzyInference:
             )
             for rule in rule_base.rules
         )
-        self._peaks_t = rule_base.outputs["k_T"].peaks
-        self._peaks_c = rule_base.outputs["k_C"].peaks
+        """Per rule: its min_distance term, beta term, k_T term and k_C term (indices)."""
+        self.peaks_t = rule_base.outputs["k_T"].peaks
+        self.peaks_c = rule_base.outputs["k_C"].peaks
 
     def weights(self, min_distance: float, beta: float) -> tuple[float, float]:
         """k_T and k_C for one pair of inputs (clamped to their universes)."""
         if min_distance != min_distance or beta != beta:
             raise ValueError(f"fuzzy inputs must not be NaN: ({min_distance}, {beta})")
-        low, high = self._distance_range
-        min_distance = low if min_distance < low else high if min_distance > high else min_distance
-        low, high = self._beta_range
-        beta = low if beta < low else high if beta > high else beta
-        mu_distance = [_membership(min_distance, *term) for term in self._distance_points]
-        mu_beta = [_membership(beta, *term) for term in self._beta_points]
-        fired_t = [0.0, 0.0, 0.0]
-        fired_c = [0.0, 0.0, 0.0]
-        for distance_i, beta_i, term_t, term_c in self._rules:
-            strength = mu_distance[distance_i]
-            other = mu_beta[beta_i]
-            if other < strength:
-                strength = other
-            if strength > fired_t[term_t]:
-                fired_t[term_t] = strength
-            if strength > fired_c[term_c]:
-                fired_c[term_c] = strength
-        return (
-            centroid_of_partition(self._peaks_t, fired_t),
-            centroid_of_partition(self._peaks_c, fired_c),
-        )
+        k_t, k_c = infer(SCALAR, self, min_distance, beta)
+        return k_t, k_c
 
 
-def _membership(x: float, a: float, b: float, c: float, d: float) -> float:
-    """:class:`Trapezoid` without the method call, for the per-tick path."""
-    if x < a or x > d:
-        return 0.0
-    if x < b:
-        return (x - a) / (b - a)
-    if x <= c:
-        return 1.0
-    return (d - x) / (d - c)
+def infer(ops: Ops, inference: FuzzyInference, min_distance: Real, beta: Real) -> tuple[Real, Real]:
+    """k_T and k_C of ``inference``'s rule base for the inputs (clamped to their universes)."""
+    low, high = inference.distance_range
+    min_distance = ops.where(
+        min_distance < low, low, ops.where(min_distance > high, high, min_distance)
+    )
+    low, high = inference.beta_range
+    beta = ops.where(beta < low, low, ops.where(beta > high, high, beta))
+    mu_distance = [membership(ops, min_distance, *term) for term in inference.distance_terms]
+    mu_beta = [membership(ops, beta, *term) for term in inference.beta_terms]
+    fired_t: list[Real] = [0.0, 0.0, 0.0]
+    fired_c: list[Real] = [0.0, 0.0, 0.0]
+    for distance_term, beta_term, term_t, term_c in inference.rules:
+        strength = ops.min(mu_distance[distance_term], mu_beta[beta_term])
+        fired_t[term_t] = ops.max(fired_t[term_t], strength)
+        fired_c[term_c] = ops.max(fired_c[term_c], strength)
+    return (
+        centroid(ops, inference.peaks_t, fired_t),
+        centroid(ops, inference.peaks_c, fired_c),
+    )
+
+
+def membership(ops: Ops, x: Real, a: float, b: float, c: float, d: float) -> Real:
+    """The trapezoid rising a->b, 1 on [b, c], falling c->d (a == b or c == d: a shoulder)."""
+    rising = (x - a) / (b - a if a < b else 1.0)
+    falling = (d - x) / (d - c if c < d else 1.0)
+    inner = ops.where(x < b, rising, ops.where(x <= c, 1.0, falling))
+    return ops.where((x < a) | (x > d), 0.0, inner)
 
 
 def centroid_of_partition(peaks: Sequence[float], fired: Sequence[float]) -> float:
+    """:func:`centroid` of one set of fired levels."""
+    return float(centroid(SCALAR, peaks, fired))
+
+
+def centroid(ops: Ops, peaks: Sequence[float], fired: Sequence[Real]) -> Real:
     """Exact centroid of max(min(fired_k, term_k)) over a three-triangle partition.
 
     The union splits at the peaks into four pieces; on each piece, in the normalised
@@ -229,55 +230,70 @@ def centroid_of_partition(peaks: Sequence[float], fired: Sequence[float]) -> flo
     larger of one of each, all of which integrate in closed form.
     """
     small, medium, big = peaks
-    w_small, w_medium, w_big = fired
     low_width = medium - small
     high_width = big - medium
-    area = moment = 0.0
+    # Each level's whole rising edge, _rising(level, 1): both of its branches give the same
+    # bits at level == 1 (a membership is at most 1), so the general one serves.
+    whole = [
+        (
+            level * (1.0 - level * 0.5),
+            level * level * level / 3.0 + level * (1.0 - level * level) * 0.5,
+        )
+        for level in fired
+    ]
     # Left tail: min(w_small, u); right tail: min(w_big, 1 - u).
-    piece_area, piece_moment = _rising(w_small, 1.0)
-    area += low_width * piece_area
-    moment += low_width * ((small - low_width) * piece_area + low_width * piece_moment)
-    piece_area, piece_moment = _rising(w_big, 1.0)
-    area += high_width * piece_area
-    moment += high_width * (big * piece_area + high_width * (piece_area - piece_moment))
-    for start, width, falling, rising in (
-        (small, low_width, w_small, w_medium),
-        (medium, high_width, w_medium, w_big),
-    ):
-        piece_area, piece_moment = _falling_then_rising(falling, rising)
-        area += width * piece_area
-        moment += width * (start * piece_area + width * piece_moment)
+    piece_area, piece_moment = whole[0]
+    area = 0.0 + low_width * piece_area
+    moment = 0.0 + low_width * ((small - low_width) * piece_area + low_width * piece_moment)
+    piece_area, piece_moment = whole[2]
+    area = area + high_width * piece_area
+    moment = moment + high_width * (big * piece_area + high_width * (piece_area - piece_moment))
+    for start, width, falling, rising in ((small, low_width, 0, 1), (medium, high_width, 1, 2)):
+        piece_area, piece_moment = _falling_then_rising(
+            ops, fired[falling], fired[rising], whole[falling], whole[rising]
+        )
+        area = area + width * piece_area
+        moment = moment + width * (start * piece_area + width * piece_moment)
     return moment / area
 
 
-def _rising(level: float, upto: float) -> tuple[float, float]:
+def _rising(ops: Ops, level: Real, upto: Real) -> tuple[Real, Real]:
     """Integrals of min(level, u) and u*min(level, u) over [0, upto], upto in [0, 1]."""
-    if upto <= level:
-        return upto * upto * 0.5, upto * upto * upto / 3.0
+    full = upto <= level
     return (
-        level * (upto - level * 0.5),
-        level * level * level / 3.0 + level * (upto * upto - level * level) * 0.5,
+        ops.where(full, upto * upto * 0.5, level * (upto - level * 0.5)),
+        ops.where(
+            full,
+            upto * upto * upto / 3.0,
+            level * level * level / 3.0 + level * (upto * upto - level * level) * 0.5,
+        ),
     )
 
 
-def _falling_then_rising(falling: float, rising: float) -> tuple[float, float]:
-    """Integrals of max(min(falling, 1 - u), min(rising, u)) over [0, 1].
+def _falling_then_rising(
+    ops: Ops,
+    falling: Real,
+    rising: Real,
+    falling_whole: tuple[Real, Real],
+    rising_whole: tuple[Real, Real],
+) -> tuple[Real, Real]:
+    """Integrals of max(min(falling, 1 - u), min(rising, u)) over [0, 1], given each level's
+    whole rising edge.
 
     The falling part wins on [0, c] and the rising part on [c, 1], with c where they cross.
     With v = 1 - u the falling part is min(falling, v) over [1 - c, 1], and u = 1 - v.
     """
-    if falling <= rising and falling <= 0.5:
-        crossing = falling
-    elif rising < falling and rising <= 0.5:
-        crossing = 1.0 - rising
-    else:
-        crossing = 0.5
-    full_area, full_moment = _rising(falling, 1.0)
-    part_area, part_moment = _rising(falling, 1.0 - crossing)
+    crossing = ops.where(
+        (falling <= rising) & (falling <= 0.5),
+        falling,
+        ops.where((rising < falling) & (rising <= 0.5), 1.0 - rising, 0.5),
+    )
+    full_area, full_moment = falling_whole
+    part_area, part_moment = _rising(ops, falling, 1.0 - crossing)
     falling_area = full_area - part_area
     falling_moment = falling_area - (full_moment - part_moment)
-    full_area, full_moment = _rising(rising, 1.0)
-    part_area, part_moment = _rising(rising, crossing)
+    full_area, full_moment = rising_whole
+    part_area, part_moment = _rising(ops, rising, crossing)
     return (
         falling_area + full_area - part_area,
         falling_moment + full_moment - part_moment,

@@ -31,27 +31,45 @@ What DM reports, seen from the tool centre point (TCP) looking towards the next 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
-from protocol.geometry import EllipticCylinder, Point, cross, length, wrap_angle
+from protocol.geometry import (
+    EllipticCylinder,
+    Point,
+    Section,
+    length,
+    line_crossings,
+    nearest_point,
+    tangent_points,
+    to_local,
+    wrap_angle,
+)
+from protocol.ops import SCALAR, Mask, Ops, Real
+
+REACH_MARGIN = 1e-6
+"""m: beyond the sensing range plus the long semi-axis (plus this, for rounding) from an
+obstacle's centre, the clearance exceeds the range: DM finds nothing, without measuring."""
+NO_OBSTACLE = Section(100.0, 100.0, 1.0, 0.0, 0.01, 0.005, 0.0, -math.inf)
+"""The section measured where there is no obstacle: one no TCP is ever below."""
 
 
-@dataclass(frozen=True, slots=True)
-class ObstacleMeasurement:
-    """What module DM hands to AO and to the coordinator on one tick."""
+class ObstacleMeasurement(NamedTuple):
+    """What module DM hands to AO and to the coordinator on one tick (floats, or arrays of
+    one element per run)."""
 
-    present: bool
-    clearance: float
-    d_left: float
-    d_right: float
-    beta: float
-    blocked: bool
-    ahead: float
-    toward: float = -1.0
-    to_nearest: tuple[float, float] = (0.0, 0.0)
+    present: Mask
+    clearance: Real
+    d_left: Real
+    d_right: Real
+    beta: Real
+    blocked: Mask
+    ahead: Real
+    toward: Real = -1.0
+    to_nearest: tuple[Real, Real] = (0.0, 0.0)
 
     @property
-    def min_distance(self) -> float:
+    def min_distance(self) -> Real:
+        """min(d_L, d_R), of one measurement (floats)."""
         return min(self.d_left, self.d_right)
 
 
@@ -78,47 +96,118 @@ def measure(
 ) -> ObstacleMeasurement:
     """Module DM: measure ``obstacle`` from the TCP towards the next waypoint ``goal``
     (and along ``heading`` for ``toward``, if given)."""
+    section = NO_OBSTACLE if obstacle is None else obstacle.section()
+    angle = 0.0 if heading is None else heading
+    found = sense(SCALAR, section, sensing_range, tcp, goal, (math.cos(angle), math.sin(angle)))
+    return found if heading is not None or not found.present else found._replace(toward=-1.0)
+
+
+def sense(
+    ops: Ops,
+    section: Section,
+    sensing_range: float,
+    tcp: tuple[Real, Real, Real],
+    goal: tuple[Real, Real],
+    heading: tuple[Real, Real],
+) -> ObstacleMeasurement:
+    """Module DM from the TCP towards ``goal`` (x, y), the TCP moving along ``heading`` (its
+    cos and sin): what :func:`measure` finds, as floats or for many runs at once."""
     px, py, pz = tcp
-    if obstacle is None or pz >= obstacle.height + obstacle.inflation:
-        return absent(sensing_range)
-    clearance, nearest = obstacle.nearest_point(px, py)
-    if clearance >= sensing_range:
-        return absent(sensing_range)
+    dx, dy = px - section.x, py - section.y
+    reach = section.a + sensing_range + REACH_MARGIN
+    return ops.branch(
+        ops.not_(pz >= section.top) & (dx * dx + dy * dy < reach * reach),
+        lambda *near: _sense_near(ops, sensing_range, *near),
+        absent(sensing_range),
+        section,
+        px,
+        py,
+        goal,
+        heading,
+    )
+
+
+def _sense_near(
+    ops: Ops,
+    sensing_range: float,
+    section: Section,
+    px: Real,
+    py: Real,
+    goal: tuple[Real, Real],
+    heading: tuple[Real, Real],
+) -> ObstacleMeasurement:
+    """:func:`sense` below the obstacle's top and near enough to measure."""
+    lx, ly = to_local(section, px, py)
+    clearance, nearest_x, nearest_y = nearest_point(ops, section, lx, ly)
+    return ops.branch(
+        ops.not_(clearance >= sensing_range),
+        lambda *present: _sense_present(ops, sensing_range, *present),
+        absent(sensing_range),
+        section,
+        px,
+        py,
+        lx,
+        ly,
+        clearance,
+        (nearest_x - px, nearest_y - py),
+        goal,
+        heading,
+    )
+
+
+def _sense_present(
+    ops: Ops,
+    sensing_range: float,
+    section: Section,
+    px: Real,
+    py: Real,
+    lx: Real,
+    ly: Real,
+    clearance: Real,
+    to_nearest: tuple[Real, Real],
+    goal: tuple[Real, Real],
+    heading: tuple[Real, Real],
+) -> ObstacleMeasurement:
+    """:func:`sense` within the sensing range."""
     gx, gy = goal[0] - px, goal[1] - py
-    goal_distance = length(gx, gy)
-    if goal_distance < 1e-9:  # on the goal: look at the obstacle instead
-        gx, gy = obstacle.x - px, obstacle.y - py
-        goal_distance = max(length(gx, gy), 1e-9)
-    near = min(max(clearance, 0.0), sensing_range)
-    crossings = obstacle.line_crossings(px, py, px + gx, py + gy)
-    if crossings is None:
-        other = sensing_range
-        blocked = False
-    else:
-        entry, exit_ = crossings
-        other = min(min(abs(entry), abs(exit_)) * goal_distance, sensing_range)
-        other = max(other, near)
-        blocked = entry <= 1.0 and exit_ >= 0.0
-    to_nearest = (nearest[0] - px, nearest[1] - py)
-    side = cross((gx, gy), to_nearest)
-    nearest_distance = length(*to_nearest)
+    goal_distance = length(ops, gx, gy)
+    on_goal = goal_distance < 1e-9
+    if ops.any(on_goal):  # on the goal: look at the obstacle instead
+        gx = ops.where(on_goal, section.x - px, gx)
+        gy = ops.where(on_goal, section.y - py, gy)
+        goal_distance = ops.where(on_goal, ops.max(length(ops, gx, gy), 1e-9), goal_distance)
+    near = ops.min(ops.max(clearance, 0.0), sensing_range)
+    crosses, entry, exit_ = line_crossings(ops, section, lx, ly, px + gx, py + gy)
+    other = ops.min(ops.min(abs(entry), abs(exit_)) * goal_distance, sensing_range)
+    other = ops.where(crosses, ops.max(other, near), sensing_range)
+    blocked = crosses & (entry <= 1.0) & (exit_ >= 0.0)
+    to_x, to_y = to_nearest
+    side = gx * to_y - gy * to_x
+    nearest_distance = length(ops, to_x, to_y)
     span = nearest_distance * goal_distance
-    ahead = (gx * to_nearest[0] + gy * to_nearest[1]) / span if span > 0.0 else 1.0
-    toward = -1.0
-    if heading is not None and nearest_distance > 0.0:
-        toward = (
-            math.cos(heading) * to_nearest[0] + math.sin(heading) * to_nearest[1]
-        ) / nearest_distance
-    d_left, d_right = (near, other) if side >= 0.0 else (other, near)
-    edges = obstacle.tangent_points(px, py)
-    if edges is None:
-        beta = -math.pi / 2.0
-    else:
-        goal_angle = math.atan2(gy, gx)
-        left, right = (wrap_angle(math.atan2(e[1] - py, e[0] - px) - goal_angle) for e in edges)
-        beta = min(abs(left), abs(right))
-        if left > 0.0 > right:
-            beta = -beta
+    spanned, apart = span > 0.0, nearest_distance > 0.0
+    ahead = ops.where(spanned, (gx * to_x + gy * to_y) / ops.where(spanned, span, 1.0), 1.0)
+    heading_cos, heading_sin = heading
+    toward = ops.where(
+        apart,
+        (heading_cos * to_x + heading_sin * to_y) / ops.where(apart, nearest_distance, 1.0),
+        -1.0,
+    )
+    left_side = side >= 0.0
+    outside, left_x, left_y, right_x, right_y = tangent_points(ops, section, px, py, lx, ly)
+    goal_angle = ops.atan2(gy, gx)
+    left = wrap_angle(ops.atan2(left_y - py, left_x - px) - goal_angle)
+    right = wrap_angle(ops.atan2(right_y - py, right_x - px) - goal_angle)
+    beta = ops.min(abs(left), abs(right))
+    beta = ops.where((left > 0.0) & (right < 0.0), -beta, beta)
     return ObstacleMeasurement(
-        True, clearance, d_left, d_right, beta, blocked, ahead, toward, to_nearest
+        ops.full(clearance, True),
+        clearance,
+        ops.where(left_side, near, other),
+        ops.where(left_side, other, near),
+        ops.where(outside, beta, -math.pi / 2.0),
+        blocked,
+        ahead,
+        toward,
+        to_nearest,
     )

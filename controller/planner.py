@@ -26,6 +26,7 @@ import numpy.typing as npt
 
 from protocol.errors import ConfigError, KinematicsError, PathOutsideWorkspaceError
 from protocol.kinematics import clearly_reachable, inverse
+from protocol.ops import Real
 from protocol.scenario import Scenario, load_scenario
 
 __all__ = [
@@ -102,27 +103,29 @@ class CubicSegment:
 
     def position(self, t: float) -> float:
         """Position at absolute time ``t`` (Horner)."""
-        tau = t - self.t_start
-        return ((self.k3 * tau + self.k2) * tau + self.k1) * tau + self.k0
+        return self.evaluate(t)[0]
 
     def velocity(self, t: float) -> float:
         """Velocity at absolute time ``t`` (eq. 21/23 in local time)."""
-        tau = t - self.t_start
-        return (3.0 * self.k3 * tau + 2.0 * self.k2) * tau + self.k1
+        return self.evaluate(t)[1]
 
     def acceleration(self, t: float) -> float:
         """Acceleration at absolute time ``t``; linear in ``t`` for a cubic."""
-        return 6.0 * self.k3 * (t - self.t_start) + 2.0 * self.k2
+        return self.evaluate(t)[2]
 
     def evaluate(self, t: float) -> tuple[float, float, float]:
         """``(position, velocity, acceleration)`` in one pass."""
-        tau = t - self.t_start
-        k1, k2, k3 = self.k1, self.k2, self.k3
-        return (
-            ((k3 * tau + k2) * tau + k1) * tau + self.k0,
-            (3.0 * k3 * tau + 2.0 * k2) * tau + k1,
-            6.0 * k3 * tau + 2.0 * k2,
-        )
+        return cubic(self.k0, self.k1, self.k2, self.k3, t - self.t_start)
+
+
+def cubic(k0: Real, k1: Real, k2: Real, k3: Real, tau: Real) -> tuple[Real, Real, Real]:
+    """Position (Horner), velocity and acceleration of ``k0 + k1 tau + k2 tau^2 + k3 tau^3``,
+    for floats or arrays alike: the one place a plan is evaluated."""
+    return (
+        ((k3 * tau + k2) * tau + k1) * tau + k0,
+        (3.0 * k3 * tau + 2.0 * k2) * tau + k1,
+        6.0 * k3 * tau + 2.0 * k2,
+    )
 
 
 # --- validation (construction time only) ------------------------------------------------
@@ -311,10 +314,11 @@ class Trajectory:
         q: list[float] = []
         qd: list[float] = []
         qdd: list[float] = []
-        for k0, k1, k2, k3 in self._coeffs[i]:
-            q.append(((k3 * tau + k2) * tau + k1) * tau + k0)
-            qd.append((3.0 * k3 * tau + 2.0 * k2) * tau + k1)
-            qdd.append(6.0 * k3 * tau + 2.0 * k2)
+        for coefficients in self._coeffs[i]:
+            position, velocity, acceleration = cubic(*coefficients, tau)
+            q.append(position)
+            qd.append(velocity)
+            qdd.append(acceleration)
         return (tuple(q), tuple(qd), tuple(qdd))
 
     def sample(self, times: Array) -> tuple[Array, Array]:
@@ -324,9 +328,7 @@ class Trajectory:
         segment = np.searchsorted(starts, times, side="right") - 1
         k = np.array(self._coeffs)[segment]  # (len(times), dims, 4)
         tau = (times - starts[segment])[:, None]
-        k0, k1, k2, k3 = k[..., 0], k[..., 1], k[..., 2], k[..., 3]
-        positions = ((k3 * tau + k2) * tau + k1) * tau + k0
-        velocities = (3.0 * k3 * tau + 2.0 * k2) * tau + k1
+        positions, velocities, _ = cubic(k[..., 0], k[..., 1], k[..., 2], k[..., 3], tau)
         return positions, velocities
 
 

@@ -33,6 +33,7 @@ from typing import Any
 import cantools
 
 from protocol.errors import DecodeError, EncodeError
+from protocol.ops import SCALAR, Ops, Real
 
 DBC_TEXT = resources.files("protocol").joinpath("scara.dbc").read_text()
 
@@ -93,6 +94,14 @@ class SignalSpec:
         low = math.ceil(round((self.minimum - self.offset) / self.scale, 6))
         high = math.floor(round((self.maximum - self.offset) / self.scale, 6))
         return low, high
+
+
+def quantised(ops: Ops, value: Real, scale: float, offset: float, low: int, high: int) -> Real:
+    """The value a receiver decodes for ``value`` sent in a signal of ``scale`` and
+    ``offset`` whose raw integers lie in [``low``, ``high``] (round half to even, as Python's
+    ``round`` and numpy's ``rint``): for one value, or one per run of a batch."""
+    raw = ops.min(ops.max(ops.rint((value - offset) / scale), low), high)
+    return raw * scale + offset
 
 
 _FORMATS = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h"}
@@ -226,16 +235,14 @@ class MessageCodec:
             if not minimum <= value <= maximum:  # also false for NaN
                 name = f"{self.name}.{self.signal_names[index]}"
                 raise EncodeError(f"{name}: {value!r} outside [{minimum:g}, {maximum:g}]")
-            raw = round((value - offset) / scale)
             if integer:
-                if raw != value:
+                if round(value) != value:
                     raise EncodeError(
                         f"{self.name}.{self.signal_names[index]}: {value!r} is not an integer"
                     )
-                values.append(raw)
+                values.append(round(value))
                 continue
-            raw = low if raw < low else high if raw > high else raw
-            values.append(raw * scale + offset)
+            values.append(quantised(SCALAR, value, scale, offset, low, high))
         return self._make(self.Record, values)
 
     def decode(self, data: bytes | bytearray) -> tuple[int, Any]:

@@ -13,15 +13,17 @@ from __future__ import annotations
 
 import math
 from enum import Enum
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from protocol.config import RobotConfig
 from protocol.errors import JointLimitError, UnreachableError
+from protocol.ops import SCALAR, Ops, Real
 
-Real = TypeVar("Real", float, npt.NDArray[np.float64])
+Values = TypeVar("Values", float, npt.NDArray[np.float64])
+"""For :func:`tcp_velocity`: one state, or a whole log's arrays."""
 
 # Round-off allowed on cos(theta2), z and the joint limits, so that points exactly on the
 # workspace boundary (e.g. forward() of a joint limit) stay reachable; results are clamped.
@@ -42,16 +44,34 @@ class Elbow(Enum):
     UP = -1
 
 
+class ArmTrig(NamedTuple):
+    """The sines and cosines of theta1 and theta1 + theta2 that the arm's formulas share."""
+
+    sin1: Real
+    cos1: Real
+    sin12: Real
+    cos12: Real
+
+
+def arm_trig(ops: Ops, theta1: Real, theta2: Real) -> ArmTrig:
+    theta12 = theta1 + theta2
+    return ArmTrig(ops.sin(theta1), ops.cos(theta1), ops.sin(theta12), ops.cos(theta12))
+
+
+def tool_position(config: RobotConfig, trig: ArmTrig, d3: Real) -> tuple[Real, Real, Real]:
+    """Tool position ``(x, y, z)`` (eq. 10), from the joints' :class:`ArmTrig` and ``d3``."""
+    return (
+        config.a1 * trig.cos1 + config.a2 * trig.cos12,
+        config.a1 * trig.sin1 + config.a2 * trig.sin12,
+        config.d0 - d3,
+    )
+
+
 def forward(
     config: RobotConfig, theta1: float, theta2: float, d3: float
 ) -> tuple[float, float, float]:
     """Tool position ``(x, y, z)`` for the joint values (eq. 10)."""
-    theta12 = theta1 + theta2
-    return (
-        config.a1 * math.cos(theta1) + config.a2 * math.cos(theta12),
-        config.a1 * math.sin(theta1) + config.a2 * math.sin(theta12),
-        config.d0 - d3,
-    )
+    return tool_position(config, arm_trig(SCALAR, theta1, theta2), d3)
 
 
 def inverse(
@@ -139,19 +159,24 @@ def jacobian_planar(
     config: RobotConfig, theta1: float, theta2: float
 ) -> tuple[float, float, float, float]:
     """``d(x, y) / d(theta1, theta2)`` as row-major ``(j11, j12, j21, j22)``."""
-    a2s12 = config.a2 * math.sin(theta1 + theta2)
-    a2c12 = config.a2 * math.cos(theta1 + theta2)
-    return (
-        -config.a1 * math.sin(theta1) - a2s12,
-        -a2s12,
-        config.a1 * math.cos(theta1) + a2c12,
-        a2c12,
-    )
+    return planar_jacobian(config, arm_trig(SCALAR, theta1, theta2))
+
+
+def planar_jacobian(config: RobotConfig, trig: ArmTrig) -> tuple[Real, Real, Real, Real]:
+    """:func:`jacobian_planar` from the joints' :class:`ArmTrig`."""
+    a2s12 = config.a2 * trig.sin12
+    a2c12 = config.a2 * trig.cos12
+    return (-config.a1 * trig.sin1 - a2s12, -a2s12, config.a1 * trig.cos1 + a2c12, a2c12)
 
 
 def tcp_velocity(
-    config: RobotConfig, theta1: Real, theta2: Real, rate1: Real, rate2: Real, trig: Any = math
-) -> tuple[Real, Real]:
+    config: RobotConfig,
+    theta1: Values,
+    theta2: Values,
+    rate1: Values,
+    rate2: Values,
+    trig: Any = math,
+) -> tuple[Values, Values]:
     """Planar tool velocity ``J(theta) (theta1_dot, theta2_dot)`` (eq. 10 differentiated).
 
     ``trig`` supplies ``sin`` and ``cos``: :mod:`math` for one state, :mod:`numpy` for the
@@ -173,6 +198,20 @@ def joint_rates_for(
     vy: float,
     damping: float = 0.01,
 ) -> tuple[float, float]:
+    """Joint rates ``(theta1_dot, theta2_dot)`` giving the planar tool velocity ``(vx, vy)``
+    (:func:`joint_rates`)."""
+    return joint_rates(SCALAR, config, theta2, arm_trig(SCALAR, theta1, theta2), vx, vy, damping)
+
+
+def joint_rates(
+    ops: Ops,
+    config: RobotConfig,
+    theta2: Real,
+    trig: ArmTrig,
+    vx: Real,
+    vy: Real,
+    damping: float,
+) -> tuple[Real, Real]:
     """Joint rates ``(theta1_dot, theta2_dot)`` giving the planar tool velocity ``(vx, vy)``.
 
     Damped least squares, ``qdot = J^T (J J^T + lambda^2 I)^-1 v``, so the rates stay
@@ -185,10 +224,10 @@ def joint_rates_for(
     lambda^2 J^T`` and ``det(J J^T + lambda^2 I) = d^2 + lambda^2 (|J|_F^2 + lambda^2)``;
     the closed form below uses these, which avoids the cancellation of forming ``J J^T``.
     """
-    j11, j12, j21, j22 = jacobian_planar(config, theta1, theta2)
-    s2 = math.sin(theta2)
+    j11, j12, j21, j22 = planar_jacobian(config, trig)
+    s2 = ops.sin(theta2)
     ratio = s2 / DAMPING_S2_REF
-    lam2 = damping * damping * (1.0 - ratio * ratio) if abs(ratio) < 1.0 else 0.0
+    lam2 = ops.where(abs(ratio) < 1.0, damping * damping * (1.0 - ratio * ratio), 0.0)
     det_j = config.a1 * config.a2 * s2
     denominator = det_j * det_j + lam2 * (j11 * j11 + j12 * j12 + j21 * j21 + j22 * j22 + lam2)
     return (

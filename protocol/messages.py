@@ -15,7 +15,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from protocol.codec import COUNTER_MODULO, WIRE
+from protocol.codec import COUNTER_MODULO, WIRE, quantised
+from protocol.ops import Ops, Real
 
 Joints = tuple[float, float, float]
 
@@ -94,6 +95,37 @@ def command_record(rates: Joints, enable: bool = True) -> Any:
     return COMMAND.Record(
         Enable=int(enable), Theta1Rate=rates[0], Theta2Rate=rates[1], D3Rate=rates[2]
     )
+
+
+def _wire_of(specs: tuple[Any, ...]) -> tuple[tuple[float, float, int, int], ...]:
+    return tuple((spec.scale, spec.offset, *spec.raw_range) for spec in specs)
+
+
+_POSITION = _wire_of(tuple(codec.spec["Position"] for codec in STATE))
+_VELOCITY = _wire_of(tuple(codec.spec["Velocity"] for codec in STATE))
+_RATES = _wire_of(tuple(COMMAND.spec[name] for name in ("Theta1Rate", "Theta2Rate", "D3Rate")))
+
+
+def joints_on_the_wire(
+    ops: Ops, position: tuple[Real, Real, Real], velocity: tuple[Real, Real, Real]
+) -> tuple[tuple[Real, ...], tuple[Real, ...]]:
+    """:func:`on_the_wire_state` for values the codec's range checks would pass (the plant
+    keeps positions within the joint limits and speeds within the speed limits, which
+    ``check_robot_fits_wire`` keeps within the wire's ranges): one arm, or a batch's runs."""
+    return (
+        tuple(
+            quantised(ops, value, *wire) for value, wire in zip(position, _POSITION, strict=True)
+        ),
+        tuple(
+            quantised(ops, value, *wire) for value, wire in zip(velocity, _VELOCITY, strict=True)
+        ),
+    )
+
+
+def rates_on_the_wire(ops: Ops, rates: tuple[Real, Real, Real]) -> tuple[Real, ...]:
+    """:func:`on_the_wire_command` for commands within the speed limits (the law keeps them
+    there): one arm, or a batch's runs."""
+    return tuple(quantised(ops, value, *wire) for value, wire in zip(rates, _RATES, strict=True))
 
 
 def on_the_wire_command(rates: Joints) -> Joints:

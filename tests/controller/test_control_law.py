@@ -15,12 +15,21 @@ from controller.behaviours import (
     avoid_obstacle,
     plan_tracking,
 )
-from controller.control_law import PASSED, RATE_CHANGE, ControlLaw
-from controller.coordination import ConventionalCoordinator
-from controller.obstacle import measure
+from controller.control_law import (
+    PASSED,
+    RATE_CHANGE,
+    ControlLaw,
+    approach_limited,
+    final_approach,
+    height_lead,
+    reach_limited,
+)
+from controller.coordination import Coordination, weights
+from controller.obstacle import ObstacleMeasurement, measure
 from protocol.config import ControllerConfig
 from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder
+from protocol.ops import SCALAR
 from protocol.scenario import Mode, load_scenario
 from sim.measures import WAYPOINT_TOLERANCE
 from sim.simulation import simulate
@@ -29,19 +38,21 @@ CONFIG = ControllerConfig()
 
 
 def test_tracking_on_the_plan_follows_it() -> None:
-    command = plan_tracking(CONFIG, 0.0, (0.3, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    command = plan_tracking(SCALAR, CONFIG, 0.0, (0.3, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
     assert command.v == pytest.approx(0.2)
     assert command.omega == pytest.approx(0.0)
 
 
 def test_tracking_ahead_of_the_plan_slows_down_instead_of_turning_round() -> None:
-    command = plan_tracking(CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    command = plan_tracking(SCALAR, CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
     assert command.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)  # crawls on, never stops
     assert command.omega == pytest.approx(0.0)
 
 
 def test_tracking_beside_the_plan_steers_back() -> None:
-    left_of_plan = plan_tracking(CONFIG, 0.0, (0.3, 0.02), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    left_of_plan = plan_tracking(
+        SCALAR, CONFIG, 0.0, (0.3, 0.02), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0)
+    )
     assert left_of_plan.omega < 0.0  # turn right, back onto the path
     assert 0.0 < left_of_plan.v <= CONFIG.speed_max
 
@@ -52,7 +63,22 @@ def test_avoiding_turns_to_the_chosen_side_and_settles_on_the_edge(side: int) ->
     tcp = (0.3, 0.0, 0.2)
     measurement = measure(obstacle, tcp, (0.7, 0.0), CONFIG.sensing_range)
     aim = obstacle.grown(CONFIG.ao_pass_margin)
-    head_on = avoid_obstacle(CONFIG, aim, measurement, side, 0.0, tcp[:2])
+
+    def avoiding(heading: float) -> float:
+        command, kept = avoid_obstacle(
+            SCALAR,
+            CONFIG,
+            aim.section(),
+            measurement,
+            measurement.min_distance,
+            side,
+            heading,
+            tcp[:2],
+        )
+        assert kept == side
+        return command
+
+    head_on = avoiding(0.0)
     assert math.copysign(1.0, head_on.omega) == side
     assert head_on.v > 0.0
     # Heading straight at the edge of the obstacle grown by the pass margin: no more turning.
@@ -60,19 +86,23 @@ def test_avoiding_turns_to_the_chosen_side_and_settles_on_the_edge(side: int) ->
     assert edges is not None
     edge = edges[0] if side == TURN_LEFT else edges[1]
     at_edge = math.atan2(edge[1] - tcp[1], edge[0] - tcp[0])
-    settled = avoid_obstacle(CONFIG, aim, measurement, side, at_edge, tcp[:2])
+    settled = avoiding(at_edge)
     assert settled.omega == pytest.approx(0.0, abs=1e-9)
 
 
 def test_conventional_switch_is_all_or_nothing() -> None:
     obstacle = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02)
-    coordinator = ConventionalCoordinator(switch_distance=0.05)
+    coordination = Coordination.of(sensing_range=0.5, switch_distance=0.05)
+
+    def conventional(measurement: ObstacleMeasurement) -> tuple[float, float]:
+        return weights(SCALAR, coordination, False, measurement, measurement.min_distance, 0.0)
+
     far = measure(obstacle, (0.3, 0.0, 0.2), (0.7, 0.0), 0.5)
     near = measure(obstacle, (0.44, 0.0, 0.2), (0.7, 0.0), 0.5)
     behind = measure(obstacle, (0.56, 0.0, 0.2), (0.7, 0.0), 0.5)
-    assert coordinator.weights(far) == (1.0, 0.0)
-    assert coordinator.weights(near) == (0.0, 1.0)
-    assert coordinator.weights(behind) == (1.0, 0.0)
+    assert conventional(far) == (1.0, 0.0)
+    assert conventional(near) == (0.0, 1.0)
+    assert conventional(behind) == (1.0, 0.0)
 
 
 @pytest.mark.parametrize("mode", list(Mode))
@@ -151,7 +181,6 @@ def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
     clearance: float,
 ) -> None:
     scenario = load_scenario("reference")
-    law = ControlLaw.for_scenario(scenario)
     obstacle = scenario.obstacle
     assert obstacle is not None
     out_x, out_y = math.cos(obstacle.yaw), math.sin(obstacle.yaw)  # outward, off the long end
@@ -160,7 +189,7 @@ def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
     measurement = measure(obstacle, tcp, (0.0, 0.0), CONFIG.sensing_range, math.pi)
     assert measurement.clearance == pytest.approx(clearance)
     assert_cut_to(
-        lambda vx, vy: law._approach_limited(vx, vy, measurement),
+        lambda vx, vy: approach_limited(SCALAR, CONFIG, vx, vy, measurement),
         obstacle.yaw + math.pi,  # towards the obstacle
         CONFIG.approach_rate * max(clearance, 0.0),
     )
@@ -171,15 +200,21 @@ def test_the_tcp_moves_outwards_no_faster_than_its_distance_from_full_reach_allo
     gap: float,
 ) -> None:
     scenario = load_scenario("reference")
-    law = ControlLaw.for_scenario(scenario)
     full_reach = scenario.robot.a1 + scenario.robot.a2
     bearing = 0.7
     tcp = ((full_reach - gap) * math.cos(bearing), (full_reach - gap) * math.sin(bearing), 0.2)
-    assert_cut_to(lambda vx, vy: law._reach_limited(vx, vy, tcp), bearing, CONFIG.reach_rate * gap)
+    assert_cut_to(
+        lambda vx, vy: reach_limited(SCALAR, CONFIG.reach_rate, full_reach, vx, vy, tcp),
+        bearing,
+        CONFIG.reach_rate * gap,
+    )
 
 
 def test_the_height_leads_by_the_share_of_the_way_to_the_waypoint_an_arm_ahead_has_come() -> None:
-    lead = ControlLaw.for_scenario(load_scenario("reference"))._height_lead
+
+    def lead(ahead: bool, to_next: float, reference_to_next: float) -> float:
+        return float(height_lead(SCALAR, ahead, to_next, reference_to_next))
+
     reference_to_next = 0.04  # the reference 40 mm short of p_j
     assert lead(True, 0.04, reference_to_next) == 0.0  # with it, or beside the way as far
     assert lead(True, 0.035, reference_to_next) == 0.0  # 5 mm ahead: not yet
@@ -201,14 +236,17 @@ def _come_onto_waypoint(
     from ``along`` past it on the plan's way out and ``across`` to its left, until it is
     within PASSED of it: its velocity then (along and across the plan, m/s) and how far it
     was from the waypoint at each step. Never faster than straight at it."""
-    out_x, out_y = law.leaving[index]
-    point = law.trajectory.points[index]
+    stage = law.stages[index - 1]  # the segment to waypoint index
+    out_x, out_y = stage.leaving
+    point = stage.point
     x = point[0] + along * out_x - across * out_y
     y = point[1] + along * out_y + across * out_x
     distances = []
     for _ in range(5000):
         distance = math.hypot(point[0] - x, point[1] - y)
-        vx, vy, _ = law._final_approach(index, (x, y, point[2]), distance)
+        vx, vy, _ = final_approach(
+            SCALAR, CONFIG.position_gain, point, stage.leaving, distance, (x, y, point[2])
+        )
         distances.append(distance)
         assert math.hypot(vx, vy) <= CONFIG.position_gain * distance * (1.0 + 1e-12)
         if distance <= PASSED:
@@ -239,17 +277,18 @@ def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
     assert speed_across == pytest.approx(-0.5 * speed_along)  # on the straight line in
     assert distances == sorted(distances, reverse=True)
     # The last waypoint, where the plan stops, has no way out: straight from any side.
-    last = len(law.trajectory.points) - 1
-    assert law.leaving[last] == (0.0, 0.0)
-    point = law.trajectory.points[last]
+    last = law.stages[-1]  # the rest at the last waypoint
+    assert last.leaving == (0.0, 0.0)
+    point = last.point
     tcp = (point[0] + 0.004, point[1] - 0.001, point[2])
-    approach = law._final_approach(last, tcp, math.hypot(0.004, 0.001))
+    approach = final_approach(
+        SCALAR, CONFIG.position_gain, point, last.leaving, math.hypot(0.004, 0.001), tcp
+    )
     assert approach == pytest.approx(
         (CONFIG.position_gain * -0.004, CONFIG.position_gain * 0.001, 0.0)
     )
 
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
-    law = ControlLaw.for_scenario(load_scenario("reference"))
     far = measure(None, (0.3, 0.0, 0.2), (0.5, 0.0), CONFIG.sensing_range)
-    assert law._approach_limited(0.1, -0.2, far) == (0.1, -0.2)
+    assert approach_limited(SCALAR, CONFIG, 0.1, -0.2, far) == (0.1, -0.2)

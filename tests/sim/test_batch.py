@@ -9,24 +9,12 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
-from controller.fuzzy import FuzzyInference, RuleBase
 from controller.planner import check_plan
 from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow
-from protocol.messages import on_the_wire_command, on_the_wire_state
 from protocol.scenario import Mode, Scenario, Waypoint, check_scenario, load_scenario
-from sim.batch import (
-    WIRE_COMMAND,
-    WIRE_POSITION,
-    WIRE_VELOCITY,
-    BatchRun,
-    _Fuzzy,
-    _max,
-    _min,
-    _Sections,
-    simulate_batch,
-)
+from sim.batch import BatchRun, simulate_batch
 from sim.generator import generate_scenario_at
 from sim.measures import Measures, MeasureStream, compute_measures
 from sim.simulation import simulate
@@ -232,73 +220,11 @@ def test_ticks_past_a_runs_end_are_not_counted() -> None:
     assert_same(stream.measures()[0], run.measures, "extended")
 
 
-def test_numpy_operations_used_agree_with_math_to_the_last_bit_or_next_to_it() -> None:
-    rng = np.random.default_rng(3)
-    x, y = rng.uniform(-7.0, 7.0, 20_000), rng.uniform(-2.0, 2.0, 20_000)
-    unit = rng.uniform(-1.0, 1.0, 20_000)
-    # (name, numpy's, math's, arguments, ulps apart at most): numpy's own AVX-512 code for
-    # atan2, acos and exp, where the CPU has it, is one ulp off libm's in a few per cent.
-    for name, ours, theirs, arguments, ulps in (
-        ("sin", np.sin, math.sin, (x,), 0),
-        ("cos", np.cos, math.cos, (x,), 0),
-        ("atan2", np.arctan2, math.atan2, (y, x), 1),
-        ("acos", np.arccos, math.acos, (unit,), 1),
-        ("exp", np.exp, math.exp, (-np.abs(x),), 1),
-        ("sqrt", np.sqrt, math.sqrt, (np.abs(x),), 0),
-        ("%", np.remainder, lambda a, b: a % b, (x * 3.0, np.full_like(x, 2.0 * math.pi)), 0),
-    ):
-        expected = np.array(
-            [theirs(*values) for values in zip(*(a.tolist() for a in arguments), strict=True)]
-        )
-        apart = np.abs(ours(*arguments) - expected) / np.spacing(np.abs(expected))
-        assert apart.max() <= ulps, name
-    # The wire as the codec quantises, ties to even included.
-    positions = np.stack([x / 3.0, y, np.abs(y) / 5.0])
-    positions[0, :4] = [0.0000005, 0.0000015, -0.0000025, 0.0000035]
-    rates = np.stack([x, y * 5.0, y / 2.0])
-    rates[0, :3] = [0.0005, 0.0015, -0.0025]
-    for column in range(200):
-        position, velocity = on_the_wire_state(tuple(positions[:, column]), tuple(rates[:, column]))
-        assert WIRE_POSITION(positions[:, column : column + 1])[:, 0].tolist() == list(position)
-        assert WIRE_VELOCITY(rates[:, column : column + 1])[:, 0].tolist() == list(velocity)
-        command = on_the_wire_command(tuple(rates[:, column]))
-        assert WIRE_COMMAND(rates[:, column : column + 1])[:, 0].tolist() == list(command)
-    # Ties of min and max go to the first argument, as in Python, also for signed zeros.
-    for size in (1, 3, 100):
-        first, second = np.full(size, 0.0), np.full(size, -0.0)
-        assert np.signbit(_min(first, second)).tolist() == [False] * size  # min(0.0, -0.0)
-        assert np.signbit(_max(second, first)).tolist() == [True] * size  # max(-0.0, 0.0)
-        assert math.copysign(1.0, min(0.0, -0.0)) > 0 > math.copysign(1.0, max(-0.0, 0.0))
-
-
 def test_a_batch_shares_its_configuration() -> None:
     scenario = load_scenario("reference")
     other = replace(scenario, controller=replace(scenario.controller, sensing_range=0.1))
     with pytest.raises(ValueError, match="shares"):
         simulate_batch([scenario, other], Mode.FUZZY)
-
-
-def test_fuzzy_inference_and_ellipse_distance_are_those_of_the_scalar_code() -> None:
-    rng = np.random.default_rng(5)
-    rule_base = RuleBase.load()
-    scalar, batch = FuzzyInference(rule_base), _Fuzzy(rule_base)
-    corners = [p for t in rule_base.inputs["min_distance"].terms.values() for p in (t.a, t.d)]
-    distance = np.concatenate([rng.uniform(-0.05, 0.25, 3000), corners, [0.0, 0.2]])
-    beta = np.concatenate([rng.uniform(-3.5, 3.5, 3000), np.zeros(len(corners) + 2)])
-    k_t, k_c = batch.weights(distance, beta)
-    expected = [scalar.weights(d, b) for d, b in zip(distance.tolist(), beta.tolist(), strict=True)]
-    assert list(zip(k_t.tolist(), k_c.tolist(), strict=True)) == expected
-
-    obstacle = EllipticCylinder(0.4, -0.1, 0.12, 0.05, 0.3, 0.7, 0.02)
-    points = np.concatenate(
-        [rng.uniform(-0.3, 0.3, (3000, 2)), [[0.0, 0.0], [0.05, 0.0], [0.0, 0.03], [0.2, 0.0]]]
-    )
-    px, py = points[:, 0] + obstacle.x, points[:, 1] + obstacle.y
-    sections = _Sections([obstacle] * len(px))
-    distances, nearest_x, nearest_y = sections.nearest_point(*sections.to_local(px, py))
-    for index, (x, y) in enumerate(zip(px.tolist(), py.tolist(), strict=True)):
-        distance_, (wx, wy) = obstacle.nearest_point(x, y)
-        assert (distances[index], nearest_x[index], nearest_y[index]) == (distance_, wx, wy)
 
 
 def test_streamed_measures_agree_with_whole_log_formulas() -> None:
