@@ -1,5 +1,5 @@
-"""``controller``: the controller process. It owns the bus and the fixed-rate loop around the
-pure :class:`~controller.control_law.ControlLaw`.
+"""The controller's node: it owns the bus and the fixed-rate loop around the pure
+:class:`~controller.control_law.ControlLaw` (the ``controller`` command is :mod:`controller.cli`).
 
 Real time: the loop sleeps to absolute deadlines on the monotonic clock (no spinning: on a
 shared machine a spinning loop loses the CPU for whole scheduler slices) and at each tick
@@ -26,10 +26,9 @@ EmergencyStop latches e-stop until a reset.
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,9 +38,7 @@ import numpy as np
 
 from controller.behaviours import TURN_LEFT, TURN_RIGHT
 from controller.control_law import ControlLaw, ControlOutput
-from controller.planner import load_planned
 from controller.runlog import COLUMNS, RunLog, row_of
-from protocol.cli import number, quiet_on_closed_pipe
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError, EncodeError
 from protocol.messages import (
@@ -64,7 +61,7 @@ from protocol.messages import (
     Side,
     command_record,
 )
-from protocol.node import ClockMode, Node, NodeSetup, add_node_arguments, node_main
+from protocol.node import ClockMode, Node
 from protocol.scenario import WAYPOINT_TOLERANCE, Mode, Scenario, scenario_document
 
 STALE_TICKS = 3
@@ -533,48 +530,6 @@ class ControllerNode(Node):
         return 0 if self.finished and not self.fault else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="controller",
-        description="The SCARA controller: runs a scenario at a fixed rate and commands the "
-        "plant's joint velocities over CAN.",
-    )
-    add_node_arguments(
-        parser,
-        "real time at absolute deadlines, or lockstep with the plant",
-        "scenario file or name to run now; without one the controller is a service that "
-        "waits for a task and a run request over CAN",
-    )
-    parser.set_defaults(scenario=None)
-    parser.add_argument(
-        "--service",
-        action="store_true",
-        help="be a service even with a scenario: it is the task in force, run on request",
-    )
-    parser.add_argument(
-        "--mode", choices=[m.value for m in Mode], help="coordination (default: the scenario's)"
-    )
-    parser.add_argument(
-        "--max-wall-time",
-        type=number(0.0, low_open=True),
-        metavar="S",
-        help="give up after this many seconds",
-    )
-    add_comms_timeout_argument(parser, default=COMMS_TIMEOUT)
-    return parser
-
-
-def add_comms_timeout_argument(parser: argparse.ArgumentParser, default: float | None) -> None:
-    parser.add_argument(
-        "--comms-timeout",
-        type=number(0.0, 10.0, low_open=True),
-        default=default,
-        metavar="S",
-        help=f"s without a fresh joint state before a hold becomes a latched fault "
-        f"(default {COMMS_TIMEOUT:g}; must exceed 3 ticks)",
-    )
-
-
 def _behaviour(output: ControlOutput) -> Any:
     """Which behaviour the blend of the last step came from (eq. 30's weights)."""
     if output.k_c == 0.0:
@@ -582,37 +537,3 @@ def _behaviour(output: ControlOutput) -> Any:
     if output.k_t == 0.0:
         return Behaviour.AVOIDING
     return Behaviour.BLENDED
-
-
-def load(source: str | None) -> Scenario:
-    """The scenario to run, or without one the service's robot and gains (the defaults)."""
-    return load_planned(source) if source else Scenario("service", (), None)
-
-
-def make(setup: NodeSetup) -> ControllerNode:
-    from controller.service import ServiceNode  # the service builds on this module
-
-    args = setup.args
-    scenario = setup.scenario.with_mode(Mode(args.mode)) if args.mode else setup.scenario
-    if args.service or not scenario.waypoints:
-        if setup.clock_mode is not ClockMode.REALTIME:
-            raise ConfigError("--clock", "the service runs in real time only")
-        task = scenario if scenario.waypoints else None
-        return ServiceNode(setup.bus, scenario, task, args.comms_timeout, args.out)
-    return ControllerNode(setup.bus, scenario, setup.clock_mode, args.comms_timeout)
-
-
-def run(node: ControllerNode, args: argparse.Namespace) -> None:
-    if node.clock_mode is ClockMode.LOCKSTEP:
-        node.run_lockstep(max_wall_time=args.max_wall_time)
-    else:
-        node.run_realtime(args.max_wall_time)
-
-
-@quiet_on_closed_pipe
-def main(argv: Sequence[str] | None = None) -> int:
-    return node_main(build_parser(), argv, load, make, run)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

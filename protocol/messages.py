@@ -16,6 +16,12 @@ from __future__ import annotations
 from typing import Any
 
 from protocol.codec import COUNTER_MODULO, WIRE
+from protocol.errors import (
+    ConfigError,
+    PathOutsideWorkspaceError,
+    UnreachableWaypointError,
+    WaypointInObstacleError,
+)
 
 Joints = tuple[float, float, float]
 
@@ -44,6 +50,18 @@ ControllerFault: Any = WIRE.enum("ControllerFault", ("ControllerStatus", "FaultC
 ControllerFlag: Any = WIRE.enum("ControllerFlag", ("ControllerStatus", "Flags"), flag=True)
 PlantFault: Any = WIRE.enum("PlantFault", ("PlantStatus", "FaultCode"), flag=True)
 PlantFlag: Any = WIRE.enum("PlantFlag", ("PlantStatus", "Flags"), flag=True)
+
+
+def reason_of(error: ConfigError) -> Any:
+    """The ControllerAnswer reason for a task's error (the controller's answer, and the
+    bridge's reply to a command it refuses before sending it)."""
+    if isinstance(error, UnreachableWaypointError):
+        return Reason.UNREACHABLE
+    if isinstance(error, WaypointInObstacleError):
+        return Reason.INSIDE_OBSTACLE
+    if isinstance(error, PathOutsideWorkspaceError):
+        return Reason.PATH_LEAVES_WORKSPACE
+    return Reason.BAD_FIELD
 
 
 class Counter:
