@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,7 @@ import numpy as np
 
 from controller.behaviours import TURN_LEFT, TURN_RIGHT
 from controller.control_law import ControlLaw, ControlOutput
+from controller.loop_stats import LoopStats
 from controller.runlog import COLUMNS, RunLog, row_of
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError, EncodeError
@@ -96,47 +97,6 @@ class JointState:
     """When the last of its frames arrived (the bus's receive time, wall clock)."""
 
 
-@dataclass(slots=True)
-class LoopStats:
-    """How the loop kept time, what the wire did, and how often the controller held."""
-
-    loops: int = 0
-    ticks: int = 0
-    deadline_misses: int = 0
-    overruns: int = 0
-    lockstep_retries: int = 0
-    holds: int = 0
-    hold_time: float = 0.0
-    longest_hold: float = 0.0
-    lateness: list[float] = field(default_factory=list)
-    answer_delay: list[float] = field(default_factory=list)
-
-    def summary(self, period: float) -> dict[str, float | int | None]:
-        lateness = np.asarray(self.lateness) if self.lateness else np.zeros(1)
-        answers = np.asarray(self.answer_delay)
-        # Real time only (loops counts its ticks): lockstep has no "within a tick".
-        within = (
-            float(np.sum(answers <= period)) / self.ticks if self.loops and self.ticks else None
-        )
-        return {
-            "loops": self.loops,
-            "ticks": self.ticks,
-            "deadline_misses": self.deadline_misses,
-            "deadline_miss_fraction": self.deadline_misses / max(self.loops, 1),
-            "overruns": self.overruns,
-            "lockstep_retries": self.lockstep_retries,
-            "holds": self.holds,
-            "hold_time_s": self.hold_time,
-            "longest_hold_s": self.longest_hold,
-            "lateness_p50_us": float(np.percentile(lateness, 50) * 1e6),
-            "lateness_p99_us": float(np.percentile(lateness, 99) * 1e6),
-            "lateness_max_us": float(lateness.max() * 1e6),
-            "answered_within_tick_fraction": within,
-            "answer_delay_p50_us": float(np.percentile(answers, 50) * 1e6) if len(answers) else 0.0,
-            "answer_delay_p99_us": float(np.percentile(answers, 99) * 1e6) if len(answers) else 0.0,
-        }
-
-
 class ControllerNode(Node):
     """The controller's side of the wire around the control law of one scenario."""
 
@@ -171,8 +131,9 @@ class ControllerNode(Node):
         self.comms_timeout = comms_timeout
         self.sleep = sleep
         self.wall_clock = wall_clock
-        self._born = clock()
-        self.stats = LoopStats()
+        self.stats = LoopStats(self.period)
+        """The run's (the service's idle loop's before its first run)."""
+        self._run_started = clock()
         self._late_max = 0.0
         self.states_received = 0
         self._seen = 0
@@ -205,6 +166,8 @@ class ControllerNode(Node):
         self.ticks_to_run = round(scenario.duration / self.period) + 1
         self.law = ControlLaw.for_scenario(scenario)
         self.log_rows = RunLog(min(self.ticks_to_run, PREALLOCATED_ROWS))
+        self.stats = LoopStats(self.period)
+        self._run_started = self.clock()
         self.tick = 0  # control steps taken: the plan's clock
         self.slot = 0  # ticks since the run started, holds and missed slots included
         self._next_waypoint = 0
@@ -234,7 +197,7 @@ class ControllerNode(Node):
         self.state = JointState(position, velocity, echo, received)
         sent = self._awaiting.pop(echo, None)
         if sent is not None:
-            self.stats.answer_delay.append(received - sent)
+            self.stats.add_answer(received - sent)
 
     # --- frames out --------------------------------------------------------------------------
 
@@ -351,7 +314,7 @@ class ControllerNode(Node):
                 self.sleep(remaining)
             now = self.clock()
             lateness = now - deadline
-            self.stats.lateness.append(lateness)
+            self.stats.lateness.add(lateness)
             self._late_max = max(self._late_max, lateness)
             if lateness > LATE_TOLERANCE * self.period:
                 self.stats.deadline_misses += 1
@@ -368,9 +331,9 @@ class ControllerNode(Node):
 
     def realtime_tick(self, now: float) -> None:
         """One real-time tick: take what arrived, check freshness, command, report."""
-        self.stats.loops += 1
         self.drain()
         self.serve(now)
+        self.stats.loops += 1  # after the requests: the tick that starts a run is the run's
         fresh = self.states_received != self._seen
         self._seen = self.states_received
         if fresh:
@@ -508,6 +471,7 @@ class ControllerNode(Node):
         self.send_zero()
 
     def result(self) -> dict[str, Any]:
+        run_time = max(self.clock() - self._run_started, 1e-9)
         return super().result() | {
             "scenario": self.scenario.name,
             "scenario_document": scenario_document(self.scenario),
@@ -515,8 +479,8 @@ class ControllerNode(Node):
             "clock": self.clock_mode.value,
             "rate_hz": self.scenario.controller.rate_hz,
             "completed": self.finished,
-            "loop": self.stats.summary(self.period),
-            "realtime_factor": self.tick * self.period / max(self.clock() - self._born, 1e-9),
+            "loop": self.stats.summary(),
+            "realtime_factor": self.tick * self.period / run_time,
         }
 
     def save(self, out: Path, result: dict[str, Any]) -> None:
