@@ -3,7 +3,8 @@
 Layouts, enumerations, flag bits and send periods all come from ``scara.dbc`` (through
 :data:`protocol.codec.WIRE`); this module only gives them Python names. Enumeration members
 are the DBC's value-table labels in upper case, e.g. ``NodeState.RUNNING``; they are built at
-import, so static type checkers see them as ``Any``.
+import, so static type checkers see them as ``Any``. :func:`reason_of` is the Reason a task's
+error gets on the wire (the controller's answer, and the bridge's refusal before sending).
 
 Also the wire quantisation as a function: the in-process simulation passes the joint state
 and the command through :func:`on_the_wire_state` and :func:`on_the_wire_command`, so it sees
@@ -53,8 +54,7 @@ PlantFlag: Any = WIRE.enum("PlantFlag", ("PlantStatus", "Flags"), flag=True)
 
 
 def reason_of(error: ConfigError) -> Any:
-    """The ControllerAnswer reason for a task's error (the controller's answer, and the
-    bridge's reply to a command it refuses before sending it)."""
+    """The ControllerAnswer reason for a task's error."""
     if isinstance(error, UnreachableWaypointError):
         return Reason.UNREACHABLE
     if isinstance(error, WaypointInObstacleError):
