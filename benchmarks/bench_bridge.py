@@ -72,7 +72,7 @@ def delivery(port: int, runs: int) -> dict[str, Any]:
     """Parts 1 and 2 on one stack."""
     stack = [
         node("plant_sim.node", *bus_args(port)),
-        node("controller.node", *bus_args(port)),
+        node("controller.cli", *bus_args(port)),
         node("bridge.node", "--zenoh-port", str(port), *bus_args(port)),
     ]
     task = task_document(load_scenario("reference"))

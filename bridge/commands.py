@@ -15,9 +15,9 @@ from typing import Any
 import jsonschema
 
 from controller.planner import check_plan
-from controller.service import reason_of
 from protocol.errors import ConfigError, ScaraError
 from protocol.keys import schema
+from protocol.messages import reason_of
 from protocol.scenario import Scenario, parse_task, task_document
 
 TASK_COMMANDS = ("waypoints", "obstacle", "mode")

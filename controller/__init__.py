@@ -1,1 +1,2 @@
-"""The control law (planner, behaviours, coordinators) and the controller node."""
+"""The control law (planner, behaviours, coordinators), the controller node, its service and
+the ``controller`` command."""

@@ -1,5 +1,5 @@
-"""``controller``: the controller process. It owns the bus and the fixed-rate loop around the
-pure :class:`~controller.control_law.ControlLaw`.
+"""The controller's node: it owns the bus and the fixed-rate loop around the pure
+:class:`~controller.control_law.ControlLaw` (the ``controller`` command is :mod:`controller.cli`).
 
 Real time: the loop sleeps to absolute deadlines on the monotonic clock (no spinning: on a
 shared machine a spinning loop loses the CPU for whole scheduler slices) and at each tick
@@ -26,11 +26,10 @@ EmergencyStop latches e-stop until a reset.
 
 from __future__ import annotations
 
-import argparse
 import math
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,9 +38,8 @@ import numpy as np
 
 from controller.behaviours import TURN_LEFT, TURN_RIGHT
 from controller.control_law import ControlLaw, ControlOutput
-from controller.planner import load_planned
+from controller.loop_stats import LoopStats
 from controller.runlog import COLUMNS, RunLog, row_of
-from protocol.cli import number, quiet_on_closed_pipe
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError, EncodeError
 from protocol.messages import (
@@ -64,7 +62,7 @@ from protocol.messages import (
     Side,
     command_record,
 )
-from protocol.node import ClockMode, Node, NodeSetup, add_node_arguments, node_main
+from protocol.node import ClockMode, Node
 from protocol.scenario import WAYPOINT_TOLERANCE, Mode, Scenario, scenario_document
 
 STALE_TICKS = 3
@@ -97,47 +95,6 @@ class JointState:
     echo: int
     received: float
     """When the last of its frames arrived (the bus's receive time, wall clock)."""
-
-
-@dataclass(slots=True)
-class LoopStats:
-    """How the loop kept time, what the wire did, and how often the controller held."""
-
-    loops: int = 0
-    ticks: int = 0
-    deadline_misses: int = 0
-    overruns: int = 0
-    lockstep_retries: int = 0
-    holds: int = 0
-    hold_time: float = 0.0
-    longest_hold: float = 0.0
-    lateness: list[float] = field(default_factory=list)
-    answer_delay: list[float] = field(default_factory=list)
-
-    def summary(self, period: float) -> dict[str, float | int | None]:
-        lateness = np.asarray(self.lateness) if self.lateness else np.zeros(1)
-        answers = np.asarray(self.answer_delay)
-        # Real time only (loops counts its ticks): lockstep has no "within a tick".
-        within = (
-            float(np.sum(answers <= period)) / self.ticks if self.loops and self.ticks else None
-        )
-        return {
-            "loops": self.loops,
-            "ticks": self.ticks,
-            "deadline_misses": self.deadline_misses,
-            "deadline_miss_fraction": self.deadline_misses / max(self.loops, 1),
-            "overruns": self.overruns,
-            "lockstep_retries": self.lockstep_retries,
-            "holds": self.holds,
-            "hold_time_s": self.hold_time,
-            "longest_hold_s": self.longest_hold,
-            "lateness_p50_us": float(np.percentile(lateness, 50) * 1e6),
-            "lateness_p99_us": float(np.percentile(lateness, 99) * 1e6),
-            "lateness_max_us": float(lateness.max() * 1e6),
-            "answered_within_tick_fraction": within,
-            "answer_delay_p50_us": float(np.percentile(answers, 50) * 1e6) if len(answers) else 0.0,
-            "answer_delay_p99_us": float(np.percentile(answers, 99) * 1e6) if len(answers) else 0.0,
-        }
 
 
 class ControllerNode(Node):
@@ -174,8 +131,9 @@ class ControllerNode(Node):
         self.comms_timeout = comms_timeout
         self.sleep = sleep
         self.wall_clock = wall_clock
-        self._born = clock()
-        self.stats = LoopStats()
+        self.stats = LoopStats(self.period)
+        """The run's (the service's idle loop's before its first run)."""
+        self._run_started = clock()
         self._late_max = 0.0
         self.states_received = 0
         self._seen = 0
@@ -208,6 +166,8 @@ class ControllerNode(Node):
         self.ticks_to_run = round(scenario.duration / self.period) + 1
         self.law = ControlLaw.for_scenario(scenario)
         self.log_rows = RunLog(min(self.ticks_to_run, PREALLOCATED_ROWS))
+        self.stats = LoopStats(self.period)
+        self._run_started = self.clock()
         self.tick = 0  # control steps taken: the plan's clock
         self.slot = 0  # ticks since the run started, holds and missed slots included
         self._next_waypoint = 0
@@ -237,7 +197,7 @@ class ControllerNode(Node):
         self.state = JointState(position, velocity, echo, received)
         sent = self._awaiting.pop(echo, None)
         if sent is not None:
-            self.stats.answer_delay.append(received - sent)
+            self.stats.add_answer(received - sent)
 
     # --- frames out --------------------------------------------------------------------------
 
@@ -354,7 +314,7 @@ class ControllerNode(Node):
                 self.sleep(remaining)
             now = self.clock()
             lateness = now - deadline
-            self.stats.lateness.append(lateness)
+            self.stats.lateness.add(lateness)
             self._late_max = max(self._late_max, lateness)
             if lateness > LATE_TOLERANCE * self.period:
                 self.stats.deadline_misses += 1
@@ -371,9 +331,9 @@ class ControllerNode(Node):
 
     def realtime_tick(self, now: float) -> None:
         """One real-time tick: take what arrived, check freshness, command, report."""
-        self.stats.loops += 1
         self.drain()
         self.serve(now)
+        self.stats.loops += 1  # after the requests: the tick that starts a run is the run's
         fresh = self.states_received != self._seen
         self._seen = self.states_received
         if fresh:
@@ -511,6 +471,7 @@ class ControllerNode(Node):
         self.send_zero()
 
     def result(self) -> dict[str, Any]:
+        run_time = max(self.clock() - self._run_started, 1e-9)
         return super().result() | {
             "scenario": self.scenario.name,
             "scenario_document": scenario_document(self.scenario),
@@ -518,8 +479,8 @@ class ControllerNode(Node):
             "clock": self.clock_mode.value,
             "rate_hz": self.scenario.controller.rate_hz,
             "completed": self.finished,
-            "loop": self.stats.summary(self.period),
-            "realtime_factor": self.tick * self.period / max(self.clock() - self._born, 1e-9),
+            "loop": self.stats.summary(),
+            "realtime_factor": self.tick * self.period / run_time,
         }
 
     def save(self, out: Path, result: dict[str, Any]) -> None:
@@ -533,48 +494,6 @@ class ControllerNode(Node):
         return 0 if self.finished and not self.fault else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="controller",
-        description="The SCARA controller: runs a scenario at a fixed rate and commands the "
-        "plant's joint velocities over CAN.",
-    )
-    add_node_arguments(
-        parser,
-        "real time at absolute deadlines, or lockstep with the plant",
-        "scenario file or name to run now; without one the controller is a service that "
-        "waits for a task and a run request over CAN",
-    )
-    parser.set_defaults(scenario=None)
-    parser.add_argument(
-        "--service",
-        action="store_true",
-        help="be a service even with a scenario: it is the task in force, run on request",
-    )
-    parser.add_argument(
-        "--mode", choices=[m.value for m in Mode], help="coordination (default: the scenario's)"
-    )
-    parser.add_argument(
-        "--max-wall-time",
-        type=number(0.0, low_open=True),
-        metavar="S",
-        help="give up after this many seconds",
-    )
-    add_comms_timeout_argument(parser, default=COMMS_TIMEOUT)
-    return parser
-
-
-def add_comms_timeout_argument(parser: argparse.ArgumentParser, default: float | None) -> None:
-    parser.add_argument(
-        "--comms-timeout",
-        type=number(0.0, 10.0, low_open=True),
-        default=default,
-        metavar="S",
-        help=f"s without a fresh joint state before a hold becomes a latched fault "
-        f"(default {COMMS_TIMEOUT:g}; must exceed 3 ticks)",
-    )
-
-
 def _behaviour(output: ControlOutput) -> Any:
     """Which behaviour the blend of the last step came from (eq. 30's weights)."""
     if output.k_c == 0.0:
@@ -582,37 +501,3 @@ def _behaviour(output: ControlOutput) -> Any:
     if output.k_t == 0.0:
         return Behaviour.AVOIDING
     return Behaviour.BLENDED
-
-
-def load(source: str | None) -> Scenario:
-    """The scenario to run, or without one the service's robot and gains (the defaults)."""
-    return load_planned(source) if source else Scenario("service", (), None)
-
-
-def make(setup: NodeSetup) -> ControllerNode:
-    from controller.service import ServiceNode  # the service builds on this module
-
-    args = setup.args
-    scenario = setup.scenario.with_mode(Mode(args.mode)) if args.mode else setup.scenario
-    if args.service or not scenario.waypoints:
-        if setup.clock_mode is not ClockMode.REALTIME:
-            raise ConfigError("--clock", "the service runs in real time only")
-        task = scenario if scenario.waypoints else None
-        return ServiceNode(setup.bus, scenario, task, args.comms_timeout, args.out)
-    return ControllerNode(setup.bus, scenario, setup.clock_mode, args.comms_timeout)
-
-
-def run(node: ControllerNode, args: argparse.Namespace) -> None:
-    if node.clock_mode is ClockMode.LOCKSTEP:
-        node.run_lockstep(max_wall_time=args.max_wall_time)
-    else:
-        node.run_realtime(args.max_wall_time)
-
-
-@quiet_on_closed_pipe
-def main(argv: Sequence[str] | None = None) -> int:
-    return node_main(build_parser(), argv, load, make, run)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -31,12 +31,7 @@ import can
 
 from controller.node import COMMS_TIMEOUT, ControllerNode
 from controller.planner import check_plan
-from protocol.errors import (
-    ConfigError,
-    PathOutsideWorkspaceError,
-    UnreachableWaypointError,
-    WaypointInObstacleError,
-)
+from protocol.errors import ConfigError
 from protocol.isotp_link import IsoTpLink
 from protocol.kinematics import forward
 from protocol.messages import (
@@ -47,6 +42,7 @@ from protocol.messages import (
     NodeState,
     Reason,
     Request,
+    reason_of,
 )
 from protocol.node import ClockMode
 from protocol.scenario import Scenario, Waypoint, encode_task, parse_task, read_task
@@ -218,14 +214,3 @@ def with_approach(task: Scenario, tcp: tuple[float, float, float]) -> tuple[Scen
     run = replace(task, waypoints=(start, *task.waypoints))
     check_plan(run)
     return run, 1
-
-
-def reason_of(error: ConfigError) -> Any:
-    """The ControllerAnswer reason for a task's error."""
-    if isinstance(error, UnreachableWaypointError):
-        return Reason.UNREACHABLE
-    if isinstance(error, WaypointInObstacleError):
-        return Reason.INSIDE_OBSTACLE
-    if isinstance(error, PathOutsideWorkspaceError):
-        return Reason.PATH_LEAVES_WORKSPACE
-    return Reason.BAD_FIELD

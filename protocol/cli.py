@@ -1,7 +1,7 @@
-"""What every command shares: ``-v`` for diagnostics through :mod:`logging` (python-can's
+"""What the commands share: ``-v`` for diagnostics through :mod:`logging` (python-can's
 way), argparse types that check a number's range and name the flag when it is wrong,
-stopping on SIGINT however the command was started, and a quiet exit when the reader of its
-output goes away."""
+stopping on SIGINT however the command was started, a quiet exit when the reader of its
+output goes away, and the flags more than one command takes (``--comms-timeout``)."""
 
 from __future__ import annotations
 
@@ -83,3 +83,19 @@ def number(
         return value
 
     return parse
+
+
+def add_comms_timeout_argument(
+    parser: argparse.ArgumentParser, default: float | None, default_help: str
+) -> None:
+    """``--comms-timeout S``, the controller's comms-loss timeout: on the controller's command
+    line and on the launcher's, which passes it on; ``default_help`` says what it defaults to
+    there (the value and its lower bound are the controller's to state)."""
+    parser.add_argument(
+        "--comms-timeout",
+        type=number(0.0, 10.0, low_open=True),
+        default=default,
+        metavar="S",
+        help="s without a fresh joint state before a hold becomes a latched fault "
+        f"({default_help})",
+    )

@@ -3,7 +3,8 @@
 Layouts, enumerations, flag bits and send periods all come from ``scara.dbc`` (through
 :data:`protocol.codec.WIRE`); this module only gives them Python names. Enumeration members
 are the DBC's value-table labels in upper case, e.g. ``NodeState.RUNNING``; they are built at
-import, so static type checkers see them as ``Any``.
+import, so static type checkers see them as ``Any``. :func:`reason_of` is the Reason a task's
+error gets on the wire (the controller's answer, and the bridge's refusal before sending).
 
 Also the wire quantisation as a function: the in-process simulation passes the joint state
 and the command through :func:`on_the_wire_state` and :func:`on_the_wire_command`, so it sees
@@ -16,6 +17,12 @@ from __future__ import annotations
 from typing import Any
 
 from protocol.codec import COUNTER_MODULO, WIRE, quantised
+from protocol.errors import (
+    ConfigError,
+    PathOutsideWorkspaceError,
+    UnreachableWaypointError,
+    WaypointInObstacleError,
+)
 from protocol.ops import Ops, Real
 
 Joints = tuple[float, float, float]
@@ -45,6 +52,17 @@ ControllerFault: Any = WIRE.enum("ControllerFault", ("ControllerStatus", "FaultC
 ControllerFlag: Any = WIRE.enum("ControllerFlag", ("ControllerStatus", "Flags"), flag=True)
 PlantFault: Any = WIRE.enum("PlantFault", ("PlantStatus", "FaultCode"), flag=True)
 PlantFlag: Any = WIRE.enum("PlantFlag", ("PlantStatus", "Flags"), flag=True)
+
+
+def reason_of(error: ConfigError) -> Any:
+    """The ControllerAnswer reason for a task's error."""
+    if isinstance(error, UnreachableWaypointError):
+        return Reason.UNREACHABLE
+    if isinstance(error, WaypointInObstacleError):
+        return Reason.INSIDE_OBSTACLE
+    if isinstance(error, PathOutsideWorkspaceError):
+        return Reason.PATH_LEAVES_WORKSPACE
+    return Reason.BAD_FIELD
 
 
 class Counter:

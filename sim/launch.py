@@ -25,10 +25,10 @@ from typing import IO
 
 from tqdm import tqdm
 
-from controller.node import add_comms_timeout_argument
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, parse_options, resolve_transport
 from protocol.cli import (
+    add_comms_timeout_argument,
     add_verbosity,
     configure_logging,
     interruptible,
@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="start the controller as a service and scara-bridge (keys on the CAN router), "
         "then wait for commands on Zenoh until Ctrl-C",
     )
-    add_comms_timeout_argument(parser, default=None)
+    add_comms_timeout_argument(parser, None, "default: the controller's, see controller --help")
     add_timing_arguments(parser)
     add_bus_arguments(parser)
     add_verbosity(parser)
@@ -116,7 +116,7 @@ def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str],
     if args.plain_scheduling:
         common += ["--plain-scheduling"]
     plant = [sys.executable, "-m", "plant_sim.node", *common]
-    controller = [sys.executable, "-m", "controller.node", *common]
+    controller = [sys.executable, "-m", "controller.cli", *common]
     if args.serve:
         controller.append("--service")  # serves until stopped: no wall-time limit
     else:

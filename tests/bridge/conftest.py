@@ -33,7 +33,7 @@ def make_stack(processes: Processes) -> Callable[..., Stack]:
             args += ["--user", "bridge", "--password-file", str(password)]
         stack = Stack(processes, can_port, zenoh_port, args, on_vcan)
         stack.plant = processes.start("plant_sim.node", *stack.bus, name="plant")
-        stack.controller = processes.start("controller.node", *stack.bus, *COMMS, name="controller")
+        stack.controller = processes.start("controller.cli", *stack.bus, *COMMS, name="controller")
         stack.start_bridge()
         return stack
 

@@ -134,7 +134,7 @@ def test_an_operator_on_another_host_runs_the_arm_through_the_secure_router(
         prefix=hosts.robot, name="secure-router",
     )  # fmt: skip
     start("plant_sim.node", *bus, prefix=hosts.robot, name="plant")
-    start("controller.node", *bus, *COMMS, prefix=hosts.robot, name="controller")
+    start("controller.cli", *bus, *COMMS, prefix=hosts.robot, name="controller")
     password = processes.folder / "bridge.password"
     password.write_text(PASSWORDS["bridge"])
     start(

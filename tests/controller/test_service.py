@@ -201,6 +201,23 @@ def test_a_run_starts_from_where_the_arm_is_and_a_change_while_running_is_refuse
     assert rig.ask(TASK).accepted  # idle again: changes are taken
 
 
+def test_each_run_reports_only_its_own_loop_statistics(rig: Rig) -> None:
+    """The service's second run of the task reports its own ticks, not the two runs' sum."""
+    assert rig.ask(TASK).accepted
+    rig.step(20)  # idle ticks before the first run: in no run's statistics
+    for run in (1, 2):
+        assert rig.ask(Request.RUN) == Answer(True, "none")
+        ticks = rig.service.ticks_to_run
+        rig.step_until(
+            lambda: rig.service.node_state is not NodeState.RUNNING, ticks, f"the end of run {run}"
+        )
+        loop = rig.service.result()["loop"]
+        assert rig.service.runs == run
+        assert loop["ticks"] == ticks, loop
+        assert loop["loops"] == ticks, loop  # the tick that took the request is the first
+        rig.step(20)
+
+
 def test_a_run_needs_a_fresh_joint_state(rig: Rig) -> None:
     assert rig.ask(TASK).accepted
     rig.clock.now += 1.0  # the plant went quiet: the last state is old

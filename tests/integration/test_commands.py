@@ -17,7 +17,7 @@ COMMANDS = {
     "scara-report": "sim.report",
     "scara-router": "protocol.zenoh_can.router",
     "scara-busload": "protocol.busload.report",
-    "controller": "controller.node",
+    "controller": "controller.cli",
     "plant_sim": "plant_sim.node",
     "scara-bridge": "bridge.node",
     "scara-monitor": "bridge.monitor",
@@ -101,7 +101,7 @@ def test_a_bad_scenario_file_names_the_field(tmp_path: Path) -> None:
         "[[waypoints]]\nt = 0.0\nx = 0.4\ny = 0.1\nz = 0.25\n"
         "[[waypoints]]\nt = 1.0\nx = 0.9\ny = 0.32\nz = 0.26\n"
     )
-    done = run("controller.node", str(scenario), "--interface", "virtual")
+    done = run("controller.cli", str(scenario), "--interface", "virtual")
     assert done.returncode == 2
     assert "waypoints[1]" in done.stderr and "out of reach" in done.stderr
 

@@ -94,7 +94,7 @@ def test_realtime_controller_started_before_the_plant_still_completes(
     real_time_needed()
     out = tmp_path / "run"
     controller = processes.start(
-        "controller.node",
+        "controller.cli",
         *node_args(transport, "realtime", out, "--max-wall-time", "40"),
         name="controller",
     )
@@ -198,7 +198,7 @@ def start_realtime_pair(
 ) -> tuple[Process, Process]:
     plant = processes.start("plant_sim.node", *node_args(transport, "realtime", out), name="plant")
     controller = processes.start(
-        "controller.node",
+        "controller.cli",
         *node_args(transport, "realtime", out, "--max-wall-time", "40", *controller_extra),
         name="controller",
     )

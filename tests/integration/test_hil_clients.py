@@ -196,7 +196,7 @@ def test_bad_frames_from_cansend_are_counted_by_the_plant_and_none_is_acted_on(
     plant = processes.start("plant_sim.node", *node_args(VCAN, "lockstep", out), name="plant")
     assert observer.wait_for(lambda m: m.arbitration_id == PLANT_STATUS.frame_id, HEARD)
     controller = processes.start(
-        "controller.node", *node_args(VCAN, "lockstep", out), name="controller"
+        "controller.cli", *node_args(VCAN, "lockstep", out), name="controller"
     )
     stepping = observer.wait_for(
         lambda m: m.arbitration_id == STEP.frame_id and step_tick(m) >= 100, 4 * HEARD

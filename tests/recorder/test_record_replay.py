@@ -170,7 +170,7 @@ def test_a_recorder_killed_mid_run_is_recovered_and_reports_the_loss(
     wait_until(lambda: "recording to" in recorder.output(), 30.0, "the recorder to start")
     plant = processes.start("plant_sim.node", "endurance", *transport.cli(), name="plant")
     controller = processes.start(
-        "controller.node", "endurance", *transport.cli(), "--max-wall-time", "60", name="c"
+        "controller.cli", "endurance", *transport.cli(), "--max-wall-time", "60", name="c"
     )
     wait_until(lambda: file.stat().st_size > 600_000, 60.0, "a few chunks on disk")
     recorder.signal(signal.SIGKILL)
