@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from controller.fuzzy import OUTPUT_TERMS, RuleBase
+from controller.fuzzy import INPUT_NAMES, OUTPUT_NAMES, OUTPUT_TERMS, RuleBase
 from protocol.cli import interruptible, quiet_on_closed_pipe
 from protocol.config import ControllerConfig
 from protocol.errors import ConfigError
@@ -49,9 +49,6 @@ ENGAGED_K_C = 0.5
 NEAR_STOP = 2.0
 """A run whose stop margin is below this came near a stop: it was slower than twice the stop
 speed for STOP_MIN_TICKS ticks (how many runs a change of the law may tip into stops)."""
-FUZZY_TERMS = {"min_distance": 4, "beta": 4}
-"""Input of the rule base -> numbers of one of its terms (a trapezoid)."""
-PEAK_OUTPUTS = ("k_T", "k_C")
 
 
 @dataclass(frozen=True, slots=True)
@@ -307,16 +304,14 @@ def _rule_base(name: str, value: str, label: str) -> RuleBase:
     )
     part, _, term = name.partition(".")
     numbers = [_number(v, label) for v in value.split(":")]
-    if part in FUZZY_TERMS and term in document["inputs"][part]["terms"]:
-        if len(numbers) != FUZZY_TERMS[part]:
-            raise ConfigError(label, "a term is a:b:c:d (four numbers)")
+    if part in INPUT_NAMES and term in document["inputs"][part]["terms"]:
         document["inputs"][part]["terms"][term] = numbers
-    elif part in PEAK_OUTPUTS and term == "peaks":
-        if len(numbers) != 3:
+    elif part in OUTPUT_NAMES and term == "peaks":
+        if len(numbers) != len(OUTPUT_TERMS):
             raise ConfigError(label, "peaks are small:medium:big (three numbers)")
         document["outputs"][part]["peaks"] = dict(zip(OUTPUT_TERMS, numbers, strict=True))
     else:
-        terms = [f"{i}.{t}" for i in FUZZY_TERMS for t in document["inputs"][i]["terms"]]
+        terms = [f"{i}.{t}" for i in INPUT_NAMES for t in document["inputs"][i]["terms"]]
         known = ", ".join([*sorted(f.name for f in fields(ControllerConfig)), *terms])
         raise ConfigError(
             "--sweep", f"unknown parameter {name!r}; known: {known}, k_T.peaks, k_C.peaks"
@@ -328,13 +323,11 @@ def _rule_base(name: str, value: str, label: str) -> RuleBase:
 
 
 def _number(text: str, label: str) -> float:
+    """The number ``text`` (whether it fits is for the schema of what it sets to say)."""
     try:
-        number = float(text)
+        return float(text)
     except ValueError:
         raise ConfigError(label, f"{text!r} is not a number") from None
-    if not math.isfinite(number):
-        raise ConfigError(label, f"{text!r} is not finite")
-    return number
 
 
 # --- results ---------------------------------------------------------------------------

@@ -9,6 +9,7 @@ import json
 import math
 from collections import defaultdict
 from collections.abc import Iterator
+from dataclasses import fields
 from typing import Any
 from urllib.parse import urljoin
 
@@ -17,7 +18,10 @@ import pytest
 from referencing import Registry
 from referencing.jsonschema import DRAFT202012
 
+from controller.fuzzy import INPUT_NAMES, OUTPUT_NAMES, OUTPUT_TERMS
+from protocol.config import ControllerConfig, PlantConfig, RobotConfig
 from protocol.errors import ConfigError
+from protocol.scenario import Mode, load_scenario, task_document
 from protocol.validation import SCHEMA_BASE, bundled, check, field_name, shipped_schemas
 
 SCHEMAS = shipped_schemas()
@@ -104,6 +108,29 @@ def test_every_definition_is_used() -> None:
         if uri.startswith(f"{SCHEMA_BASE}definitions.schema.json#")
     }
     assert used == set(DEFINITIONS)
+
+
+def test_the_configurations_and_names_in_the_code_are_those_of_the_schemas() -> None:
+    assert set(DEFINITIONS["robot"]["properties"]) == set(RobotConfig().table())
+    assert set(DEFINITIONS["controller"]["properties"]) == {
+        spec.name for spec in fields(ControllerConfig)
+    }
+    assert set(DEFINITIONS["plant"]["properties"]) == {spec.name for spec in fields(PlantConfig)}
+    assert DEFINITIONS["mode"]["enum"] == [mode.value for mode in Mode]
+    rules = SCHEMAS["fuzzy-rules"]
+    assert tuple(rules["properties"]["inputs"]["properties"]) == INPUT_NAMES
+    assert tuple(rules["properties"]["outputs"]["properties"]) == OUTPUT_NAMES
+    assert tuple(rules["$defs"]["output_term"]["enum"]) == OUTPUT_TERMS
+    peaks = rules["$defs"]["output"]["properties"]["peaks"]["properties"]
+    assert tuple(peaks) == OUTPUT_TERMS
+
+
+def test_what_the_project_writes_fits_its_schemas() -> None:
+    reference = load_scenario("reference")
+    task = task_document(reference)
+    check(task, "task.schema.json")
+    check(task, "scenario.schema.json")  # what the bridge publishes on scara/<robot>/scenario
+    check(RobotConfig().table(), f"{TABLES}robot")
 
 
 @pytest.mark.parametrize(

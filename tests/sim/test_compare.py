@@ -99,7 +99,8 @@ def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
         (["--workers", "zero"], "--workers"),
         (["--sweep", "bogus=1"], "bogus"),
         (["--sweep", "switch_distance=-0.1"], "switch_distance"),
-        (["--sweep", "min_distance.near=0:0.01:0.04"], "a:b:c:d"),
+        (["--sweep", "min_distance.near=0:0.01:0.04"], "terms.near: must hold 4 entries"),
+        (["--sweep", "min_distance.near=0:0:nan:0.05"], "terms.near[2]: must be a finite number"),
         (["--sweep", "k_C.peaks=0.9:0.5:0.1"], "small < medium < big"),
         (["--sweep", "sensing_range"], "NAME=V1"),
     ):
