@@ -18,17 +18,11 @@ import pytest
 from controller.fuzzy import RuleBase
 from protocol.errors import ConfigError
 from protocol.scenario import Mode
-from sim.compare import (
-    NEAR_STOP,
-    TICK_OVERHEAD_STEPS,
-    Job,
-    Variant,
-    _run_ticks,
-    main,
-    parse_sweep,
-    plan_jobs,
-)
+from sim.compare import main
 from sim.generator import generate_scenario_at
+from sim.study.jobs import TICK_OVERHEAD_STEPS, Job, plan_jobs, run_ticks
+from sim.study.results import NEAR_STOP
+from sim.study.variants import BASELINE, parse_sweep
 
 COUNT = ["-n", "2", "--seed", "9", "-q"]  # two short scenarios (6 and 8 s)
 
@@ -132,7 +126,7 @@ def test_sweeps_make_one_variant_per_value_in_the_modes_they_concern() -> None:
 
 def test_batches_hold_every_run_once_with_long_runs_in_smaller_batches() -> None:
     scenarios = [generate_scenario_at(5, index) for index in range(40)]
-    variants = [Variant("baseline", tuple(Mode), {}), *parse_sweep("switch_distance=0.02")]
+    variants = [BASELINE, *parse_sweep("switch_distance=0.02")]
     jobs = plan_jobs(scenarios, variants, batch_size=1000, workers=4)
     runs = [
         (job.variant, mode, index)
@@ -152,7 +146,7 @@ def test_batches_hold_every_run_once_with_long_runs_in_smaller_batches() -> None
         return max(ticks) * TICK_OVERHEAD_STEPS + sum(ticks)
 
     def ticks_of(job: Job) -> list[int]:
-        return [_run_ticks(scenario) for scenario in job.scenarios]
+        return [run_ticks(scenario) for scenario in job.scenarios]
 
     everything = sorted(ticks_of(short) + ticks_of(long))
     best = min(
