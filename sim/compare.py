@@ -13,14 +13,16 @@ This module is the command line only; the study's jobs are the modules of :mod:`
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
-from protocol.cli import interruptible, quiet_on_closed_pipe
+from protocol.cli import add_verbosity, configure_logging, interruptible, quiet_on_closed_pipe
 from protocol.errors import ConfigError
 from protocol.scenario import Mode, Scenario
 from sim.study.jobs import (
@@ -44,6 +46,8 @@ from sim.study.results import (
 from sim.study.variants import BASELINE, parse_sweep
 
 DEFAULT_COUNT = 1000
+
+log = logging.getLogger("scara.compare")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,6 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-figure", action="store_true", help="skip the figures")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_verbosity(parser)
     return parser
 
 
@@ -104,6 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    configure_logging(args.verbose)
     interruptible()
     for flag, value, least in (
         ("--count", args.count, 1),
@@ -123,6 +129,7 @@ def _main(argv: Sequence[str] | None) -> int:
     executor: Processes | Cluster | None = None
     outcomes: list[Outcome] = []
     try:
+        started = time.perf_counter()
         bar = _bar(args.count, "generating", "scenario", args.quiet)
         executor = (
             Cluster(args.scheduler) if args.scheduler else Processes(args.workers, bar.update)
@@ -134,9 +141,30 @@ def _main(argv: Sequence[str] | None) -> int:
             generated.update(chunk)
             bar.update(len(chunk))
         bar.close()
+        log.info(
+            "generated %d scenarios of seed %d in %.1f s",
+            args.count,
+            args.seed,
+            time.perf_counter() - started,
+        )
         scenarios = [generated[index] for index in indices]
         jobs = plan_jobs(scenarios, variants, args.batch, args.workers)
         total = sum(run_ticks(scenario) for job in jobs for scenario in job.scenarios)
+        log.info(
+            "%d runs of %d variants in %d batches on %s",
+            sum(len(job.scenarios) for job in jobs),
+            len(variants),
+            len(jobs),
+            args.scheduler or f"{args.workers} worker processes",
+        )
+        for job in jobs:
+            log.debug(
+                "batch of %s: %d runs, %d ticks the longest",
+                job.variant,
+                len(job.scenarios),
+                max(run_ticks(scenario) for scenario in job.scenarios),
+            )
+        started = time.perf_counter()
         bar = _bar(total, "simulating", "step", args.quiet)
         if isinstance(executor, Processes):
             executor.advance = bar.update
@@ -145,6 +173,7 @@ def _main(argv: Sequence[str] | None) -> int:
             if not executor.streams:
                 bar.update(sum(run_ticks(outcome.scenario) for outcome in result))
         bar.close()
+        log.info("simulated %d steps in %.1f s", total, time.perf_counter() - started)
     finally:
         if executor is not None:
             executor.close()

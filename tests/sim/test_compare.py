@@ -104,6 +104,20 @@ def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
         assert named in capsys.readouterr().err
 
 
+def test_verbosity_tells_what_the_study_does_on_stderr(tmp_path: Path) -> None:
+    def run(*verbosity: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "sim.compare", "-n", "1", "--seed", "9", "-q"]
+        command += ["--workers", "1", "--no-figure", "--out", str(tmp_path), *verbosity]
+        return subprocess.run(command, capture_output=True, text=True, timeout=120, check=True)
+
+    quiet, debug = run(), run("-vv")
+    assert "scara.compare" not in quiet.stderr
+    assert "scara.compare: generated 1 scenarios of seed 9 in" in debug.stderr
+    assert "scara.compare: 2 runs of 1 variants in 1 batches on 1 worker processes" in debug.stderr
+    assert "scara.compare: batch of baseline: 2 runs" in debug.stderr
+    assert quiet.stdout == debug.stdout  # the report is the same
+
+
 def test_sweeps_make_one_variant_per_value_in_the_modes_they_concern() -> None:
     switch = parse_sweep("switch_distance=0.02,0.06")
     assert [v.name for v in switch] == ["switch_distance=0.02", "switch_distance=0.06"]
