@@ -33,18 +33,18 @@ from pathlib import Path
 import numpy as np
 
 from protocol.scenario import Mode, Scenario
-from sim.compare import (
+from sim.measures import Measures
+from sim.simulation import simulate
+from sim.study.jobs import (
     DEFAULT_BATCH,
     GENERATE_CHUNK,
     Outcome,
-    Processes,
-    Variant,
     generate_chunk,
     plan_jobs,
     run_job,
 )
-from sim.measures import Measures
-from sim.simulation import simulate
+from sim.study.pool import Processes
+from sim.study.variants import BASELINE
 
 FULL_COUNT = 10_000
 QUICK_COUNT = 1_000
@@ -108,7 +108,7 @@ def run(count: int, workers: int, say: Callable[[str], None]) -> tuple[list[Row]
         generation = time.perf_counter() - started
         rows.append(Row("generate_s", f"1. Generate {count} scenarios", generation, "s"))
 
-        jobs = plan_jobs(scenarios, [Variant("baseline", tuple(Mode), {})], DEFAULT_BATCH, workers)
+        jobs = plan_jobs(scenarios, [BASELINE], DEFAULT_BATCH, workers)
         steps = 2 * sum(ticks(s) for s in scenarios)
         say(f"[2/3] batch simulator: {len(jobs)} batches, {steps:,} scenario-steps")
         started = time.perf_counter()

@@ -22,6 +22,7 @@ from typing import Any
 
 from protocol.errors import ConfigError
 from protocol.ops import SCALAR, Ops, Real
+from protocol.validation import check
 
 INPUT_NAMES = ("min_distance", "beta")
 OUTPUT_NAMES = ("k_T", "k_C")
@@ -106,29 +107,20 @@ class RuleBase:
 
     @classmethod
     def from_mapping(cls, document: Mapping[str, Any]) -> RuleBase:
-        inputs = {
-            name: _parse_input(name, _field(document, "inputs", name)) for name in INPUT_NAMES
-        }
-        outputs = {
-            name: _parse_output(name, _field(document, "outputs", name)) for name in OUTPUT_NAMES
-        }
-        raw_rules = document.get("rules")
-        if not isinstance(raw_rules, list) or not raw_rules:
-            raise ConfigError("rules", "must be a non-empty list")
+        """A rule base from the document of a rule file, checked against the rule file's
+        schema (``fuzzy-rules``) and then for what a schema cannot say: points in order, rules
+        naming the inputs' terms, every input covered."""
+        check(document, "fuzzy-rules.schema.json")
+        inputs = {name: _parse_input(name, document["inputs"][name]) for name in INPUT_NAMES}
+        outputs = {name: _parse_output(name, document["outputs"][name]) for name in OUTPUT_NAMES}
         rules = []
-        for index, raw in enumerate(raw_rules):
-            where = f"rules[{index}]"
-            if not isinstance(raw, dict):
-                raise ConfigError(where, "must be an object")
+        for index, raw in enumerate(document["rules"]):
             for name in INPUT_NAMES:
-                if raw.get(name) not in inputs[name].terms:
+                if raw[name] not in inputs[name].terms:
                     raise ConfigError(
-                        f"{where}.{name}",
-                        f"unknown term {raw.get(name)!r}; known: {sorted(inputs[name].terms)}",
+                        f"rules[{index}].{name}",
+                        f"unknown term {raw[name]!r}; known: {sorted(inputs[name].terms)}",
                     )
-            for name in OUTPUT_NAMES:
-                if raw.get(name) not in OUTPUT_TERMS:
-                    raise ConfigError(f"{where}.{name}", f"must be one of {OUTPUT_TERMS}")
             rules.append(Rule(raw["min_distance"], raw["beta"], raw["k_T"], raw["k_C"]))
         base = cls(inputs, outputs, tuple(rules))
         base._check_coverage()
@@ -300,35 +292,14 @@ def _falling_then_rising(
     )
 
 
-def _field(document: Mapping[str, Any], section: str, name: str) -> Mapping[str, Any]:
-    value = document.get(section, {}).get(name) if isinstance(document.get(section), dict) else None
-    if not isinstance(value, dict):
-        raise ConfigError(f"{section}.{name}", "missing or not an object")
-    return value
-
-
-def _number_list(where: str, value: Any, length: int) -> list[float]:
-    if (
-        not isinstance(value, list)
-        or len(value) != length
-        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-        or not all(math.isfinite(v) for v in value)
-    ):
-        raise ConfigError(where, f"must be a list of {length} finite numbers, got {value!r}")
-    return [float(v) for v in value]
-
-
 def _parse_input(name: str, raw: Mapping[str, Any]) -> FuzzyInput:
-    low, high = _number_list(f"inputs.{name}.universe", raw.get("universe"), 2)
+    low, high = (float(value) for value in raw["universe"])
     if low >= high:
         raise ConfigError(f"inputs.{name}.universe", "must be [low, high] with low < high")
-    terms_raw = raw.get("terms")
-    if not isinstance(terms_raw, dict) or not terms_raw:
-        raise ConfigError(f"inputs.{name}.terms", "must be a non-empty object")
     terms = {}
-    for term, points in terms_raw.items():
+    for term, points in raw["terms"].items():
         where = f"inputs.{name}.terms.{term}"
-        a, b, c, d = _number_list(where, points, 4)
+        a, b, c, d = (float(point) for point in points)
         if not a <= b <= c <= d or a == d:
             raise ConfigError(where, "must satisfy a <= b <= c <= d with a < d")
         terms[term] = Trapezoid(a, b, c, d)
@@ -336,11 +307,7 @@ def _parse_input(name: str, raw: Mapping[str, Any]) -> FuzzyInput:
 
 
 def _parse_output(name: str, raw: Mapping[str, Any]) -> FuzzyOutput:
-    peaks_raw = raw.get("peaks")
-    if not isinstance(peaks_raw, dict):
-        raise ConfigError(f"outputs.{name}.peaks", "must map small/medium/big to numbers")
-    values = [peaks_raw.get(term) for term in OUTPUT_TERMS]
-    small, medium, big = _number_list(f"outputs.{name}.peaks", values, 3)
+    small, medium, big = (float(raw["peaks"][term]) for term in OUTPUT_TERMS)
     if not small < medium < big:
         raise ConfigError(f"outputs.{name}.peaks", "must satisfy small < medium < big")
     if not math.isclose(medium - small, big - medium, rel_tol=1e-9):

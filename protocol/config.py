@@ -1,14 +1,24 @@
 """The typed, validated configurations a run is made of: the robot, the controller's gains and
-rate, and the plant model. Every value is checked when built, and an error names its field
-(``robot.a1``, ``controller.rate_hz``, ...); a scenario carries one of each."""
+rate, and the plant model. Every value is checked when built, against the table of a scenario
+file that the schema defines (``definitions.schema.json``: finite, positive, ranges) and then
+for what a schema cannot say (a minimum below its maximum, ...); an error names its field
+(``robot.a1``, ``controller.rate_hz``, ...). A scenario carries one of each."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from typing import Any
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from functools import lru_cache
+from typing import Any, Final
 
 from protocol.errors import ConfigError
+from protocol.validation import check, shipped_schemas
+
+_TABLES: Final = "definitions.schema.json#/$defs/"
+"""Where the schema of each table (``robot``, ``controller``, ``plant``) is."""
+_ANGLES: Final = ("theta1_min", "theta1_max", "theta2_min", "theta2_max")
+"""Fields in radians, which a scenario file gives in degrees (``theta1_min_deg``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,13 +47,7 @@ class RobotConfig:
     accel_limit_d3: float = 10.0
 
     def __post_init__(self) -> None:
-        for spec in fields(self):
-            value = getattr(self, spec.name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"robot.{spec.name}", f"must be a finite number, got {value!r}")
-        for name in ("a1", "a2", "d0"):
-            if getattr(self, name) <= 0.0:
-                raise ConfigError(f"robot.{name}", "must be positive")
+        _check_table("robot", self.table())
         for low, high in (
             ("d3_min", "d3_max"),
             ("theta1_min", "theta1_max"),
@@ -53,16 +57,6 @@ class RobotConfig:
                 raise ConfigError(f"robot.{low}", f"must be below robot.{high}")
         if self.d3_max > self.d0:
             raise ConfigError("robot.d3_max", "the tool cannot go below the base (d3_max > d0)")
-        for name in (
-            "speed_limit_theta1",
-            "speed_limit_theta2",
-            "speed_limit_d3",
-            "accel_limit_theta1",
-            "accel_limit_theta2",
-            "accel_limit_d3",
-        ):
-            if getattr(self, name) <= 0.0:
-                raise ConfigError(f"robot.{name}", "must be positive")
 
     @property
     def joint_min(self) -> tuple[float, float, float]:
@@ -88,26 +82,33 @@ class RobotConfig:
     def z_max(self) -> float:
         return self.d0 - self.d3_min
 
+    def table(self) -> dict[str, float]:
+        """This robot as a scenario file's ``[robot]`` table: angles in degrees (``*_deg``)."""
+        return {
+            (f"{spec.name}_deg" if spec.name in _ANGLES else spec.name): (
+                math.degrees(value) if spec.name in _ANGLES else value
+            )
+            for spec, value in ((spec, getattr(self, spec.name)) for spec in fields(self))
+        }
+
     @classmethod
-    def from_mapping(cls, values: dict[str, Any], *, degrees: bool = True) -> RobotConfig:
-        """Build from a scenario table; angles there are in degrees (``*_deg`` keys)."""
-        known = {spec.name for spec in fields(cls)}
-        kwargs: dict[str, float] = {}
-        for key, value in values.items():
-            name = key.removesuffix("_deg") if degrees and key.endswith("_deg") else key
-            if name not in known:
-                raise ConfigError(f"robot.{key}", "unknown parameter")
-            if not isinstance(value, (int, float)) or isinstance(value, bool):
-                raise ConfigError(f"robot.{key}", f"must be a number, got {value!r}")
-            kwargs[name] = math.radians(value) if key.endswith("_deg") else float(value)
-        return cls(**kwargs)
+    def from_table(cls, table: Mapping[str, Any]) -> RobotConfig:
+        """From a scenario file's ``[robot]`` table that fits its schema (angles in degrees)."""
+        return cls(
+            **{
+                key.removesuffix("_deg"): math.radians(value)
+                if key.endswith("_deg")
+                else float(value)
+                for key, value in table.items()
+            }
+        )
 
 
-MIN_RATE_HZ = 100.0
-"""Below this a single lost command would let the plant's 20 ms brake fire between two ticks."""
-MAX_RATE_HZ = 1000.0
-"""Above this the wire's worst-case load passes half of 1 Mbit/s, and a command's round trip
-over the portable transport (p99 about 0.5 ms) no longer fits in a tick."""
+_RATE_HZ: Final = shipped_schemas()["definitions"]["$defs"]["controller"]["properties"]["rate_hz"]
+MIN_RATE_HZ: Final = float(_RATE_HZ["minimum"])
+"""The lowest control rate (the schema of ``controller.rate_hz`` says why)."""
+MAX_RATE_HZ: Final = float(_RATE_HZ["maximum"])
+"""The highest control rate (the schema of ``controller.rate_hz`` says why)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,43 +145,18 @@ class ControllerConfig:
     reach_rate: float = 10.0
 
     def __post_init__(self) -> None:
-        for spec in fields(self):
-            value = getattr(self, spec.name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise ConfigError(
-                    f"controller.{spec.name}", f"must be a finite number >= 0, got {value!r}"
-                )
-        if not MIN_RATE_HZ <= self.rate_hz <= MAX_RATE_HZ:
-            raise ConfigError(
-                "controller.rate_hz",
-                f"must be between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g} Hz, got {self.rate_hz:g}",
-            )
+        _check_table("controller", asdict(self))
         if self.ao_speed_min > self.ao_speed_max:
             raise ConfigError("controller.ao_speed_min", "must not exceed ao_speed_max")
-        for name in (
-            "ao_speed_distance",
-            "ao_turn_scale",
-            "sensing_range",
-            "position_gain",
-            "approach_rate",
-            "reach_rate",
-        ):
-            if getattr(self, name) <= 0.0:
-                raise ConfigError(f"controller.{name}", "must be positive")
 
     @property
     def period(self) -> float:
         return 1.0 / self.rate_hz
 
     @classmethod
-    def from_mapping(cls, values: dict[str, Any]) -> ControllerConfig:
-        known = {spec.name for spec in fields(cls)}
-        for key, value in values.items():
-            if key not in known:
-                raise ConfigError(f"controller.{key}", "unknown parameter")
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"controller.{key}", f"must be a number, got {value!r}")
-        return cls(**{key: float(value) for key, value in values.items()})
+    def from_table(cls, table: Mapping[str, Any]) -> ControllerConfig:
+        """From a scenario file's ``[controller]`` table that fits its schema."""
+        return cls(**{key: float(value) for key, value in table.items()})
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,7 +167,17 @@ class PlantConfig:
     substeps: int = 4
 
     def __post_init__(self) -> None:
-        if not math.isfinite(self.time_constant) or self.time_constant <= 0.0:
-            raise ConfigError("plant.time_constant", "must be a positive number of seconds")
-        if not isinstance(self.substeps, int) or not 1 <= self.substeps <= 100:
-            raise ConfigError("plant.substeps", "must be an integer from 1 to 100")
+        _check_table("plant", asdict(self))
+
+
+def _check_table(name: str, table: Mapping[str, Any]) -> None:
+    """Check a configuration, as table ``name`` of a scenario file, against its schema."""
+    _check_typed_items(name, tuple((key, type(value), value) for key, value in table.items()))
+
+
+@lru_cache(maxsize=256)
+def _check_typed_items(name: str, items: tuple[tuple[str, type, Any], ...]) -> None:
+    """Cached, as a check takes about a millisecond and a study builds thousands of equal
+    configurations (the generator's, each variant's); the types are part of the key, as 4.0
+    equals 4 but is no integer."""
+    check({key: value for key, _, value in items}, f"{_TABLES}{name}", name)

@@ -5,17 +5,17 @@ Under ``scara/<robot>/`` the bridge publishes state (``joints``, ``tcp``, ``coor
 liveliness token per live process under ``alive/``, and takes commands as queries under
 ``cmd/`` (``waypoints``, ``obstacle``, ``mode``, ``run``, ``reset``, ``stop``, ``estop``).
 Payloads are UTF-8 JSON; the schemas are files shipped with the package
-(``protocol/schemas/<name>.schema.json``), so a subscriber in any language can validate what
-it gets. The CAN-over-Zenoh transport's raw frames stay on their own keys (``scara/can/...``).
+(``protocol/schemas/<name>.schema.json``, beside those of the project's documents), so a
+subscriber in any language can validate what it gets. The CAN-over-Zenoh transport's raw
+frames stay on their own keys (``scara/can/...``).
 """
 
 from __future__ import annotations
 
-import json
 import re
-from functools import cache
-from importlib import resources
 from typing import Any, Final
+
+from protocol.validation import bundled, shipped_schemas
 
 STATE_KEYS: Final = ("joints", "tcp", "coordination", "status", "events", "scenario")
 EVERY_SAMPLE_KEYS: Final = ("events", "scenario")
@@ -55,20 +55,13 @@ def alive_key(robot: str, process: str) -> str:
     return f"scara/{robot}/alive/{process}"
 
 
-@cache
 def schema(name: str) -> dict[str, Any]:
     """The JSON Schema of a state key (``joints`` ...), of a command's payload
-    (``cmd-mode`` ...), of a command's reply (``reply``) or error reply (``error``)."""
-    text = resources.files("protocol").joinpath(f"schemas/{name}.schema.json").read_text()
-    loaded: dict[str, Any] = json.loads(text)
-    return loaded
+    (``cmd-mode`` ...), of a command's reply (``reply``) or error reply (``error``), or of a
+    document (``task`` ...): whole, with the shared definitions it refers to embedded."""
+    return bundled(name)
 
 
 def schema_names() -> list[str]:
     """Every schema shipped with the package."""
-    folder = resources.files("protocol").joinpath("schemas")
-    return sorted(
-        entry.name.removesuffix(".schema.json")
-        for entry in folder.iterdir()
-        if entry.name.endswith(".schema.json")
-    )
+    return sorted(shipped_schemas())

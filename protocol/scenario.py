@@ -1,11 +1,13 @@
 """Scenarios as TOML files: waypoints with times, the obstacle, the mode, the rates.
 
 A scenario is what the controller and the plant agree to run, so it is part of the protocol:
-both processes read the same file. It is checked whole before anything moves: every value
-finite, times increasing, every waypoint reachable within the joint limits and outside the
-obstacle, and the robot's ranges within what the wire carries. (The controller adds its own
-check of the planned path, :func:`controller.planner.check_plan`.) Errors are
-:class:`ConfigError` and name the field (``waypoints[2].x``, ``obstacle.height``, ...).
+both processes read the same file. It is checked whole before anything moves: against its
+JSON Schema (``scenario-file``, or ``task`` for a task an operator sends: every value finite,
+the number of waypoints capped, ...), then for what a schema cannot say: times increasing,
+every waypoint reachable within the joint limits and outside the obstacle, the run not too
+long, and the robot's ranges within what the wire carries. (The controller adds its own check
+of the planned path, :func:`controller.planner.check_plan`.) Errors are :class:`ConfigError`
+and name the field (``waypoints[2].x``, ``obstacle.height``, ...).
 """
 
 from __future__ import annotations
@@ -14,8 +16,9 @@ import json
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from enum import Enum
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +32,7 @@ from protocol.errors import (
 from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow, inverse
 from protocol.messages import COMMAND, STATE
+from protocol.validation import check
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 WAYPOINT_TOLERANCE = 0.002
@@ -37,10 +41,6 @@ MAX_DURATION = 3600.0
 """s: the longest run a scenario may ask for (its waypoints' span plus the settling time)."""
 DEFAULT_TOOL_RADIUS = 0.01
 DEFAULT_MARGIN = 0.01
-
-_TASK = {"name", "description", "mode", "elbow", "settle_time", "obstacle", "waypoints"}
-"""What an operator sets; a scenario file adds the robot, the gains and the plant model."""
-_TOP_LEVEL = _TASK | {"robot", "controller", "plant"}
 
 
 class Mode(Enum):
@@ -112,28 +112,24 @@ def load_scenario(source: str | Path) -> Scenario:
 
 def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") -> Scenario:
     """Build and fully check a scenario from its TOML tables."""
-    unknown = set(document) - _TOP_LEVEL
-    if unknown:
-        raise ConfigError(sorted(unknown)[0], f"unknown field; known: {sorted(_TOP_LEVEL)}")
-    robot = RobotConfig.from_mapping(dict(_table(document, "robot")))
-    controller = ControllerConfig.from_mapping(dict(_table(document, "controller")))
-    plant_table = _table(document, "plant")
-    try:
-        plant = PlantConfig(**plant_table)
-    except TypeError as error:
-        raise ConfigError("plant", str(error)) from error
-    base = Scenario("", (), None, robot=robot, controller=controller, plant=plant)
-    return _with_task(base, document, str(document.get("name", default_name)))
+    check(document, "scenario-file.schema.json")
+    base = Scenario(
+        "",
+        (),
+        None,
+        robot=RobotConfig.from_table(document.get("robot", {})),
+        controller=ControllerConfig.from_table(document.get("controller", {})),
+        plant=PlantConfig(**document.get("plant", {})),
+    )
+    return _with_task(base, document, document.get("name", default_name))
 
 
 def parse_task(document: Mapping[str, Any], base: Scenario) -> Scenario:
     """A scenario from a task document (what an operator sets: name, mode, waypoints,
     obstacle, settling time, elbow) on ``base``'s robot, gains and plant model, checked as a
     scenario file is. The JSON an operator sends over the wire (:func:`encode_task`)."""
-    unknown = set(document) - _TASK
-    if unknown:
-        raise ConfigError(sorted(unknown)[0], f"unknown field; known: {sorted(_TASK)}")
-    return _with_task(base, document, str(document.get("name", "task")))
+    check(document, "task.schema.json")
+    return _with_task(base, document, document.get("name", "task"))
 
 
 def task_document(scenario: Scenario) -> dict[str, Any]:
@@ -163,15 +159,8 @@ def task_document(scenario: Scenario) -> dict[str, Any]:
 def scenario_document(scenario: Scenario) -> dict[str, Any]:
     """The whole of ``scenario`` (task, robot, gains, plant model) as the tables of a scenario
     file, which :func:`parse_scenario` reads back: what a run's results carry."""
-    angles = {"theta1_min", "theta1_max", "theta2_min", "theta2_max"}
-    robot = {
-        (f"{name}_deg" if name in angles else name): (
-            math.degrees(value) if name in angles else value
-        )
-        for name, value in ((f.name, getattr(scenario.robot, f.name)) for f in fields(RobotConfig))
-    }
     return task_document(scenario) | {
-        "robot": robot,
+        "robot": scenario.robot.table(),
         "controller": asdict(scenario.controller),
         "plant": asdict(scenario.plant),
     }
@@ -208,35 +197,18 @@ def read_task(payload: bytes) -> tuple[int, dict[str, Any]]:
 
 
 def _with_task(base: Scenario, document: Mapping[str, Any], name: str) -> Scenario:
-    mode_name = document.get("mode", "fuzzy")
-    try:
-        mode = Mode(mode_name)
-    except ValueError as error:
-        raise ConfigError(
-            "mode", f"must be 'fuzzy' or 'conventional', got {mode_name!r}"
-        ) from error
-    elbow_name = document.get("elbow", "down")
-    if elbow_name not in ("up", "down"):
-        raise ConfigError("elbow", f"must be 'up' or 'down', got {elbow_name!r}")
-    elbow = Elbow.DOWN if elbow_name == "down" else Elbow.UP
-    settle_time = _number(document.get("settle_time", 1.0), "settle_time")
-    if settle_time < 0.0:
-        raise ConfigError("settle_time", "must not be negative")
-    obstacle_table = _table(document, "obstacle")
-    obstacle = _parse_obstacle(obstacle_table) if "obstacle" in document else None
-    tool_radius = _number(
-        obstacle_table.get("tool_radius", DEFAULT_TOOL_RADIUS), "obstacle.tool_radius"
-    )
+    """``base`` with the task of ``document``, which fits the task's schema."""
+    obstacle_table = document.get("obstacle")
     scenario = replace(
         base,
         name=name,
-        waypoints=_parse_waypoints(document.get("waypoints")),
-        obstacle=obstacle,
-        mode=mode,
-        elbow=elbow,
-        settle_time=settle_time,
-        description=str(document.get("description", "")),
-        tool_radius=tool_radius,
+        waypoints=_waypoints(document["waypoints"]),
+        obstacle=None if obstacle_table is None else _obstacle(obstacle_table),
+        mode=Mode(document.get("mode", Mode.FUZZY.value)),
+        elbow=Elbow.UP if document.get("elbow", "down") == "up" else Elbow.DOWN,
+        settle_time=float(document.get("settle_time", 1.0)),
+        description=document.get("description", ""),
+        tool_radius=float((obstacle_table or {}).get("tool_radius", DEFAULT_TOOL_RADIUS)),
     )
     if scenario.duration > MAX_DURATION:
         raise ConfigError(
@@ -291,77 +263,26 @@ def check_robot_fits_wire(robot: RobotConfig) -> None:
             )
 
 
-def _table(document: Mapping[str, Any], name: str) -> Mapping[str, Any]:
-    value = document.get(name, {})
-    if not isinstance(value, Mapping):
-        raise ConfigError(name, "must be a table")
-    return value
-
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(where, f"must be a finite number, got {value!r}")
-    return float(value)
-
-
-def _parse_waypoints(raw: Any) -> tuple[Waypoint, ...]:
-    if not isinstance(raw, list) or len(raw) < 2:
-        raise ConfigError("waypoints", "must be a list of at least 2 [[waypoints]] tables")
-    waypoints: list[Waypoint] = []
-    for index, entry in enumerate(raw):
-        if not isinstance(entry, Mapping):
-            raise ConfigError(f"waypoints[{index}]", "must be a table with t, x, y, z")
-        unknown = set(entry) - {"t", "x", "y", "z"}
-        if unknown:
-            raise ConfigError(f"waypoints[{index}].{sorted(unknown)[0]}", "unknown field")
-        values = []
-        for key in ("t", "x", "y", "z"):
-            if key not in entry:
-                raise ConfigError(f"waypoints[{index}].{key}", "missing")
-            values.append(_number(entry[key], f"waypoints[{index}].{key}"))
-        if index and values[0] <= waypoints[-1].t:
+def _waypoints(entries: list[Mapping[str, float]]) -> tuple[Waypoint, ...]:
+    """The waypoints, their times increasing."""
+    waypoints = tuple(Waypoint(*(float(entry[key]) for key in "txyz")) for entry in entries)
+    for index, (before, after) in enumerate(pairwise(waypoints), start=1):
+        if after.t <= before.t:
             raise ConfigError(
                 f"waypoints[{index}].t",
-                f"times must increase ({values[0]:g} s after {waypoints[-1].t:g} s)",
+                f"times must increase ({after.t:g} s after {before.t:g} s)",
             )
-        waypoints.append(Waypoint(*values))
-    return tuple(waypoints)
+    return waypoints
 
 
-def _parse_obstacle(raw: Any) -> EllipticCylinder:
-    if not isinstance(raw, Mapping):
-        raise ConfigError("obstacle", "must be a table")
-    known = {
-        "x",
-        "y",
-        "long_diameter",
-        "short_diameter",
-        "height",
-        "yaw_deg",
-        "tool_radius",
-        "margin",
-    }
-    unknown = set(raw) - known
-    if unknown:
-        raise ConfigError(
-            f"obstacle.{sorted(unknown)[0]}", f"unknown field; known: {sorted(known)}"
-        )
-    values = {}
-    for key in known:
-        if key in raw:
-            values[key] = _number(raw[key], f"obstacle.{key}")
-        elif key in {"x", "y", "long_diameter", "short_diameter", "height"}:
-            raise ConfigError(f"obstacle.{key}", "missing")
-    for key in ("tool_radius", "margin"):
-        if values.get(key, 0.0) < 0.0:
-            raise ConfigError(f"obstacle.{key}", "must not be negative")
+def _obstacle(table: Mapping[str, float]) -> EllipticCylinder:
     return EllipticCylinder(
-        x=values["x"],
-        y=values["y"],
-        long_diameter=values["long_diameter"],
-        short_diameter=values["short_diameter"],
-        height=values["height"],
-        yaw=math.radians(values.get("yaw_deg", 0.0)),
-        inflation=values.get("tool_radius", DEFAULT_TOOL_RADIUS)
-        + values.get("margin", DEFAULT_MARGIN),
+        x=float(table["x"]),
+        y=float(table["y"]),
+        long_diameter=float(table["long_diameter"]),
+        short_diameter=float(table["short_diameter"]),
+        height=float(table["height"]),
+        yaw=math.radians(table.get("yaw_deg", 0.0)),
+        inflation=float(table.get("tool_radius", DEFAULT_TOOL_RADIUS))
+        + float(table.get("margin", DEFAULT_MARGIN)),
     )

@@ -17,6 +17,7 @@ from typing import Any
 import jsonschema
 import pytest
 import zenoh
+from referencing import Registry, Resource
 from robot_stack import PASSWORDS, ROBOT, Stack, command, latest, open_client
 from support import hil_marks, real_time_needed, wait_until
 
@@ -41,9 +42,14 @@ REFERENCE = {
 }  # fmt: skip
 
 
-def load_schema(name: str) -> dict[str, Any]:
-    loaded: dict[str, Any] = json.loads((SCHEMAS / f"{name}.schema.json").read_text())
-    return loaded
+def schema_validator(name: str) -> jsonschema.Draft202012Validator:
+    """Key ``name``'s validator, with every schema file in its registry to resolve the
+    shared definitions they refer to."""
+    documents = {path.name: json.loads(path.read_text()) for path in SCHEMAS.glob("*.schema.json")}
+    registry: Registry[Any] = Registry().with_resources(
+        (document["$id"], Resource.from_contents(document)) for document in documents.values()
+    )
+    return jsonschema.Draft202012Validator(documents[f"{name}.schema.json"], registry=registry)
 
 
 class Recorder:
@@ -124,7 +130,7 @@ def test_every_key_arrives_at_its_rate_and_fits_its_schema_and_a_late_joiner_see
     for name in STATE_KEYS:
         samples = recorder.of(name)
         assert samples, f"nothing on {name}"
-        validator = jsonschema.Draft202012Validator(load_schema(name))
+        validator = schema_validator(name)
         for _, payload in samples:
             validator.validate(payload)
         if name == "scenario":  # carries no seq
@@ -153,7 +159,7 @@ def test_every_key_arrives_at_its_rate_and_fits_its_schema_and_a_late_joiner_see
     for name in ("joints", "tcp", "coordination", "status", "scenario"):
         payload = latest(late, f"scara/{ROBOT}/{name}")
         assert payload is not None, f"no latest {name}"
-        jsonschema.validate(payload, load_schema(name))
+        schema_validator(name).validate(payload)
     scenario = latest(late, f"scara/{ROBOT}/scenario")
     assert scenario is not None and scenario["waypoints"] == REFERENCE["waypoints"]
     alive = {str(reply.ok.key_expr) for reply in late.liveliness().get(f"scara/{ROBOT}/alive/*")}
@@ -241,7 +247,7 @@ def test_a_malformed_command_gets_an_error_naming_the_field_and_changes_nothing(
     replies = list(operator.get(f"scara/{ROBOT}/cmd/{name}", payload=payload, timeout=5.0))
     assert len(replies) == 1 and replies[0].err is not None
     error = json.loads(replies[0].err.payload.to_bytes())
-    jsonschema.validate(error, load_schema("error"))
+    schema_validator("error").validate(error)
     assert error["field"] == field, error
     time.sleep(0.3)  # a change would show in the controller's next status and described task
     assert latest(operator, f"scara/{ROBOT}/scenario") == before
@@ -266,7 +272,7 @@ def test_out_of_range_commands_are_refused_with_the_reason_and_change_nothing(
     ):
         ok, reply = command(operator, "waypoints", body)
         assert ok, reply
-        jsonschema.validate(reply, load_schema("reply"))
+        schema_validator("reply").validate(reply)
         assert (reply["accepted"], reply["reason"], reply["field"]) == (False, reason, field)
     assert latest(operator, f"scara/{ROBOT}/scenario") == before
 

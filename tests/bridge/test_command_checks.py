@@ -5,11 +5,13 @@ the controller's own reason; a good one makes the task the controller will get."
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import pytest
 
 from bridge.commands import MalformedCommandError, RefusedError, edit_task, parse_payload
+from protocol.errors import ConfigError
 from protocol.keys import COMMANDS
 from protocol.scenario import Mode, Scenario, load_scenario, parse_task, task_document
 
@@ -124,3 +126,19 @@ def test_a_task_the_controller_would_refuse_is_refused_with_its_reason(
     assert (raised.value.reason, raised.value.field) == (reason, field), raised.value
     reply = raised.value.reply()
     assert reply["accepted"] is False and reply["reason"] == reason and reply["message"]
+
+
+def test_the_bridge_and_the_controller_cap_the_waypoints_alike() -> None:
+    """The bridge's check of a command and the controller's parser read the same schema."""
+    cap = 32
+    arc = [
+        {"t": float(i), "x": 0.4 * math.cos(i / cap), "y": 0.4 * math.sin(i / cap), "z": 0.25}
+        for i in range(cap + 1)
+    ]
+    assert len(edited("waypoints", {"waypoints": arc[:cap]}, current=None).waypoints) == cap
+    with pytest.raises(MalformedCommandError) as raised:
+        parse_payload("waypoints", json.dumps({"waypoints": arc}).encode())
+    assert raised.value.field == "waypoints"
+    with pytest.raises(ConfigError) as refused:
+        parse_task({"waypoints": arc}, BASE)
+    assert refused.value.field == "waypoints"

@@ -392,9 +392,39 @@ def _short_of_the_end(name: str, term: str, corner: int) -> Any:
     return edit
 
 
+def _set(path: list[str | int], value: Any) -> Any:
+    """Set the value at ``path`` (``None``: delete it)."""
+
+    def edit(document: dict[str, Any]) -> None:
+        target: Any = document
+        for key in path[:-1]:
+            target = target[key]
+        if value is None:
+            del target[path[-1]]
+        else:
+            target[path[-1]] = value
+
+    return edit
+
+
 @pytest.mark.parametrize(
     ("edit", "field"),
     [
+        (
+            _set(["inputs", "min_distance", "terms", "near", 1], math.nan),
+            "inputs.min_distance.terms.near[1]",
+        ),
+        (_set(["inputs", "beta", "terms", "big"], [0.35, 0.8, 3.2]), "inputs.beta.terms.big"),
+        (_set(["inputs", "beta", "universe"], [-1.0, "pi"]), "inputs.beta.universe[1]"),
+        (_set(["inputs", "beta", "terms"], {}), "inputs.beta.terms"),
+        (_set(["inputs", "min_distance"], None), "inputs.min_distance"),
+        (_set(["outputs", "k_C", "peaks", "big"], math.inf), "outputs.k_C.peaks.big"),
+        (_set(["outputs", "k_T", "peaks", "huge"], 2.0), "outputs.k_T.peaks.huge"),
+        (_set(["rules", 0, "k_T"], "huge"), "rules[0].k_T"),
+        (_set(["rules", 3, "beta"], None), "rules[3].beta"),
+        (_set(["rules"], []), "rules"),
+        (_set(["defuzzify"], "mean of maxima"), "defuzzify"),
+        (_set(["inputs", "beta", "universe"], [1.0, -1.0]), "inputs.beta.universe"),
         (_unknown_rule_term, "rules[4].min_distance"),
         (_unordered_trapezoid, "inputs.beta.terms.small"),
         (_peaks_not_increasing, "outputs.k_T.peaks"),

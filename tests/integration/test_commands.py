@@ -13,6 +13,7 @@ from support import ROOT
 
 COMMANDS = {
     "scara-sim": "sim.cli",
+    "scara-compare": "sim.compare",
     "scara-run": "sim.launch",
     "scara-report": "sim.report",
     "scara-router": "protocol.zenoh_can.router",

@@ -1,8 +1,11 @@
-"""Scenarios: the packaged ones load; bad ones fail before anything moves, naming the field."""
+"""Scenarios and tasks: the packaged ones load; bad ones, from a file or over the wire, fail
+before anything moves, naming the field; a task of as many waypoints as the schema allows fits
+one transfer."""
 
 from __future__ import annotations
 
 import copy
+import json
 import math
 import tomllib
 from pathlib import Path
@@ -11,7 +14,18 @@ from typing import Any
 import pytest
 
 from protocol.errors import ConfigError
-from protocol.scenario import SCENARIO_DIR, Mode, load_scenario, parse_scenario
+from protocol.scenario import (
+    MAX_TASK_BYTES,
+    SCENARIO_DIR,
+    Mode,
+    Scenario,
+    encode_task,
+    load_scenario,
+    parse_scenario,
+    parse_task,
+    read_task,
+)
+from protocol.validation import shipped_schemas
 
 REFERENCE = tomllib.loads((SCENARIO_DIR / "reference.toml").read_text())
 
@@ -61,6 +75,18 @@ def _set(path: list[Any], value: Any) -> Any:
         (_set(["waypoints", 1], {"t": 1.5, "x": 0.455, "y": -0.01, "z": 0.22}), "waypoints[1]"),
         (_set(["waypoints", 1, "w"], 1.0), "waypoints[1].w"),
         (_set(["waypoints"], [{"t": 0.0, "x": 0.3, "y": 0.0, "z": 0.2}]), "waypoints"),
+        (
+            _set(["waypoints"], [{"t": t / 10, "x": 0.3, "y": 0.0, "z": 0.2} for t in range(33)]),
+            "waypoints",
+        ),
+        (_set(["waypoints", 0], [0.0, 0.3, -0.25, 0.25]), "waypoints[0]"),
+        (_set(["waypoints", 2, "z"], True), "waypoints[2].z"),
+        (_set(["settle_time"], -1.0), "settle_time"),
+        (_set(["settle_time"], 4000.0), "waypoints"),
+        (_set(["name"], 7), "name"),
+        (_set(["obstacle"], 0.3), "obstacle"),
+        (_set(["obstacle", "margin"], -0.01), "obstacle.margin"),
+        (_set(["obstacle", "yaw_deg"], math.nan), "obstacle.yaw_deg"),
         (_set(["obstacle", "height"], -0.1), "obstacle.height"),
         (_set(["obstacle", "long_diameter"], math.inf), "obstacle.long_diameter"),
         (_set(["obstacle", "short_diameter"], 0.5), "obstacle.short_diameter"),
@@ -70,6 +96,11 @@ def _set(path: list[Any], value: Any) -> Any:
         (_set(["controller"], {"rate_hz": 0.0}), "controller.rate_hz"),
         (_set(["controller"], {"gain": 1.0}), "controller.gain"),
         (_set(["robot"], {"a1": -1.0}), "robot.a1"),
+        (_set(["robot"], {"theta1_min_deg": "low"}), "robot.theta1_min_deg"),
+        (_set(["robot"], {"theta1_min": -2.0}), "robot.theta1_min"),
+        (_set(["robot"], {"d3_min": 0.3}), "robot.d3_min"),
+        (_set(["plant"], {"substeps": 4.0}), "plant.substeps"),
+        (_set(["controller"], {"ao_speed_min": 0.5}), "controller.ao_speed_min"),
         (_set(["plant"], {"substeps": 0}), "plant.substeps"),
         (_set(["robot"], {"speed_limit_theta2": 20.0}), "robot.speed_limit_theta2"),
         (_set(["robot"], {"theta1_max_deg": 200.0}), "robot.theta1_max"),
@@ -86,3 +117,76 @@ def test_bad_scenarios_name_the_field(change: Any, field: str) -> None:
 def test_unknown_scenario_name_lists_the_packaged_ones() -> None:
     with pytest.raises(ConfigError, match="reference"):
         load_scenario("no-such-scenario")
+
+
+BASE = Scenario("operator", (), None)
+
+
+def _wire(document: Any) -> bytes:
+    return json.dumps({"ticket": 3} | document).encode()
+
+
+@pytest.mark.parametrize(
+    ("payload", "field"),
+    [
+        (b"NaN", "document"),
+        (b"{", "document"),
+        (_wire({"waypoints": REFERENCE["waypoints"], "speed": 2}), "speed"),
+        (_wire({"waypoints": REFERENCE["waypoints"][:1]}), "waypoints"),
+        (_wire({"mode": "fuzzy"}), "waypoints"),
+        (
+            _wire(
+                {
+                    "waypoints": [
+                        REFERENCE["waypoints"][0],
+                        REFERENCE["waypoints"][1] | {"x": math.nan},
+                    ]
+                }
+            ),
+            "waypoints[1].x",
+        ),
+        (
+            _wire(
+                {
+                    "waypoints": REFERENCE["waypoints"],
+                    "obstacle": REFERENCE["obstacle"] | {"height": math.inf},
+                }
+            ),
+            "obstacle.height",
+        ),
+        (_wire({"waypoints": REFERENCE["waypoints"], "robot": {"a1": 0.3}}), "robot"),
+        (_wire({"waypoints": REFERENCE["waypoints"], "elbow": None}), "elbow"),
+        (json.dumps({"ticket": 256, "waypoints": REFERENCE["waypoints"]}).encode(), "ticket"),
+    ],
+)
+def test_bad_tasks_over_the_wire_name_the_field(payload: bytes, field: str) -> None:
+    """Python's json reads NaN and Infinity, which JSON does not have: refused like a string."""
+    with pytest.raises(ConfigError) as error:
+        parse_task(read_task(payload)[1], BASE)
+    assert error.value.field == field, str(error.value)
+
+
+def _circle(count: int) -> list[dict[str, float]]:
+    """``count`` reachable waypoints on an arc, a second apart, each value a long decimal."""
+    return [
+        {
+            "t": index + 0.123456789012345,
+            "x": 0.4 * math.cos(-1.5 + 3.0 * index / count) + 1.23456789e-9,
+            "y": 0.4 * math.sin(-1.5 + 3.0 * index / count) - 1.23456789e-9,
+            "z": 0.250000000000001,
+        }
+        for index in range(count)
+    ]
+
+
+def test_a_task_of_as_many_waypoints_as_the_schema_allows_fits_one_transfer() -> None:
+    """The schema's cap is the parser's, and what keeps a task within one ISO-TP transfer."""
+    cap = shipped_schemas()["definitions"]["$defs"]["waypoints"]["maxItems"]
+    obstacle = REFERENCE["obstacle"] | {"x": 0.15, "y": 0.0}  # inside the arc, clear of it
+    document = {"name": "longest", "waypoints": _circle(cap), "obstacle": obstacle}
+    longest = parse_task(document, BASE)
+    assert len(longest.waypoints) == cap
+    assert len(encode_task(longest, 255)) <= MAX_TASK_BYTES
+    with pytest.raises(ConfigError) as error:
+        parse_task(document | {"waypoints": _circle(cap + 1)}, BASE)
+    assert error.value.field == "waypoints" and f"at most {cap}" in str(error.value)

@@ -18,17 +18,11 @@ import pytest
 from controller.fuzzy import RuleBase
 from protocol.errors import ConfigError
 from protocol.scenario import Mode
-from sim.compare import (
-    NEAR_STOP,
-    TICK_OVERHEAD_STEPS,
-    Job,
-    Variant,
-    _run_ticks,
-    main,
-    parse_sweep,
-    plan_jobs,
-)
+from sim.compare import main
 from sim.generator import generate_scenario_at
+from sim.study.jobs import TICK_OVERHEAD_STEPS, Job, plan_jobs, run_ticks
+from sim.study.results import NEAR_STOP
+from sim.study.variants import BASELINE, parse_sweep
 
 COUNT = ["-n", "2", "--seed", "9", "-q"]  # two short scenarios (6 and 8 s)
 
@@ -99,7 +93,8 @@ def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
         (["--workers", "zero"], "--workers"),
         (["--sweep", "bogus=1"], "bogus"),
         (["--sweep", "switch_distance=-0.1"], "switch_distance"),
-        (["--sweep", "min_distance.near=0:0.01:0.04"], "a:b:c:d"),
+        (["--sweep", "min_distance.near=0:0.01:0.04"], "terms.near: must hold 4 entries"),
+        (["--sweep", "min_distance.near=0:0:nan:0.05"], "terms.near[2]: must be a finite number"),
         (["--sweep", "k_C.peaks=0.9:0.5:0.1"], "small < medium < big"),
         (["--sweep", "sensing_range"], "NAME=V1"),
     ):
@@ -107,6 +102,20 @@ def test_help_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
             main(arguments)
         assert done.value.code == 2
         assert named in capsys.readouterr().err
+
+
+def test_verbosity_tells_what_the_study_does_on_stderr(tmp_path: Path) -> None:
+    def run(*verbosity: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "sim.compare", "-n", "1", "--seed", "9", "-q"]
+        command += ["--workers", "1", "--no-figure", "--out", str(tmp_path), *verbosity]
+        return subprocess.run(command, capture_output=True, text=True, timeout=120, check=True)
+
+    quiet, debug = run(), run("-vv")
+    assert "scara.compare" not in quiet.stderr
+    assert "scara.compare: generated 1 scenarios of seed 9 in" in debug.stderr
+    assert "scara.compare: 2 runs of 1 variants in 1 batches on 1 worker processes" in debug.stderr
+    assert "scara.compare: batch of baseline: 2 runs" in debug.stderr
+    assert quiet.stdout == debug.stdout  # the report is the same
 
 
 def test_sweeps_make_one_variant_per_value_in_the_modes_they_concern() -> None:
@@ -131,7 +140,7 @@ def test_sweeps_make_one_variant_per_value_in_the_modes_they_concern() -> None:
 
 def test_batches_hold_every_run_once_with_long_runs_in_smaller_batches() -> None:
     scenarios = [generate_scenario_at(5, index) for index in range(40)]
-    variants = [Variant("baseline", tuple(Mode), {}), *parse_sweep("switch_distance=0.02")]
+    variants = [BASELINE, *parse_sweep("switch_distance=0.02")]
     jobs = plan_jobs(scenarios, variants, batch_size=1000, workers=4)
     runs = [
         (job.variant, mode, index)
@@ -151,7 +160,7 @@ def test_batches_hold_every_run_once_with_long_runs_in_smaller_batches() -> None
         return max(ticks) * TICK_OVERHEAD_STEPS + sum(ticks)
 
     def ticks_of(job: Job) -> list[int]:
-        return [_run_ticks(scenario) for scenario in job.scenarios]
+        return [run_ticks(scenario) for scenario in job.scenarios]
 
     everything = sorted(ticks_of(short) + ticks_of(long))
     best = min(
