@@ -42,9 +42,10 @@ tests instead of skipping them, so a broken VM cannot pass as a green run."""
 
 SLOWDOWN = float(os.environ.get("SCARA_TEST_SLOWDOWN", "1"))
 """How many times slower than an ordinary host this machine runs the processes: every bound
-on waiting (for a process, a frame, a condition, a test) is stretched by it. ``.ci/run`` sets
-it in the software-emulated VM, where python runs about 30 times slower; the bounds only ever
-decide how long a failure takes to show, never whether a test passes."""
+on waiting (for a process, a frame, a condition, a test) is stretched by it, and so is the
+lateness a test allows a measured pace. ``.ci/run`` sets it in the software-emulated VM, where
+python runs about 30 times slower; a bound on waiting only decides how long a failure takes to
+show, never whether a test passes."""
 
 
 EMULATED = SLOWDOWN > 1.0

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from support import Process, Processes, free_port, wait_until
+from support import SLOWDOWN, Process, Processes, free_port, wait_until
 
 from protocol.zenoh_can.config import router_reachable
 
@@ -48,8 +48,9 @@ def open_client(port: int, user: str | None = None, password: str | None = None)
 
 
 def latest(session: zenoh.Session, key: str, timeout: float = 2.0) -> dict[str, Any] | None:
-    """The latest value of a state key from the bridge's queryable (None if no answer)."""
-    for reply in session.get(key, timeout=timeout):
+    """The latest value of a state key from the bridge's queryable (None if no answer within
+    ``timeout`` s, times SLOWDOWN)."""
+    for reply in session.get(key, timeout=timeout * SLOWDOWN):
         if reply.ok is not None:
             loaded: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
             return loaded
@@ -59,9 +60,11 @@ def latest(session: zenoh.Session, key: str, timeout: float = 2.0) -> dict[str, 
 def command(
     session: zenoh.Session, name: str, body: Any = None, timeout: float = 5.0
 ) -> tuple[bool, dict[str, Any]]:
-    """Send a command; ``(ok, reply)``: ok is False for an error reply (malformed)."""
+    """Send a command; ``(ok, reply)``: ok is False for an error reply (malformed). The reply
+    is waited for ``timeout`` s (times SLOWDOWN)."""
     payload = None if body is None else json.dumps(body)
-    replies = list(session.get(f"scara/{ROBOT}/cmd/{name}", payload=payload, timeout=timeout))
+    key = f"scara/{ROBOT}/cmd/{name}"
+    replies = list(session.get(key, payload=payload, timeout=timeout * SLOWDOWN))
     assert len(replies) == 1, f"{name}: {len(replies)} replies"
     reply = replies[0]
     if reply.ok is not None:

@@ -19,7 +19,7 @@ import pytest
 import zenoh
 from referencing import Registry, Resource
 from robot_stack import PASSWORDS, ROBOT, Stack, command, latest, open_client
-from support import hil_marks, real_time_needed, wait_until
+from support import SLOWDOWN, hil_marks, real_time_needed, wait_until
 
 from protocol.keys import EVERY_SAMPLE_KEYS
 
@@ -183,7 +183,9 @@ def test_an_authorised_operator_runs_the_arm_around_the_obstacle_and_others_cann
 
     for name, body in (("waypoints", {"waypoints": REFERENCE["waypoints"]}), ("run", None)):
         replies = list(
-            monitor.get(f"scara/{ROBOT}/cmd/{name}", payload=json.dumps(body), timeout=2.0)
+            monitor.get(
+                f"scara/{ROBOT}/cmd/{name}", payload=json.dumps(body), timeout=2.0 * SLOWDOWN
+            )
         )
         assert replies == [], f"the monitor's {name} got an answer"
     assert latest(monitor, f"scara/{ROBOT}/status") is not None  # but it may read the state
@@ -244,12 +246,13 @@ def test_a_malformed_command_gets_an_error_naming_the_field_and_changes_nothing(
     stack.wait_ready(operator)
     set_reference_task(operator)
     before = latest(operator, f"scara/{ROBOT}/scenario")
-    replies = list(operator.get(f"scara/{ROBOT}/cmd/{name}", payload=payload, timeout=5.0))
+    key = f"scara/{ROBOT}/cmd/{name}"
+    replies = list(operator.get(key, payload=payload, timeout=5.0 * SLOWDOWN))
     assert len(replies) == 1 and replies[0].err is not None
     error = json.loads(replies[0].err.payload.to_bytes())
     schema_validator("error").validate(error)
     assert error["field"] == field, error
-    time.sleep(0.3)  # a change would show in the controller's next status and described task
+    time.sleep(0.3 * SLOWDOWN)  # a change would show in the controller's next status and task
     assert latest(operator, f"scara/{ROBOT}/scenario") == before
     status = latest(operator, f"scara/{ROBOT}/status")
     assert status is not None and status["controller"]["state"] == "ready"
@@ -290,11 +293,12 @@ def test_a_run_completes_when_the_bridge_is_killed_and_a_new_bridge_picks_up_the
     assert stack.bridge is not None
     stack.bridge.signal(signal.SIGKILL)
     stack.bridge.wait(5.0)
-    wait_until(
-        lambda: not list(operator.liveliness().get(f"scara/{ROBOT}/alive/bridge", timeout=1.0)),
-        10.0,
-        "the dead bridge's liveliness token to go",
-    )
+
+    def bridge_alive() -> bool:
+        key = f"scara/{ROBOT}/alive/bridge"
+        return bool(list(operator.liveliness().get(key, timeout=1.0 * SLOWDOWN)))
+
+    wait_until(lambda: not bridge_alive(), 10.0, "the dead bridge's liveliness token to go")
     time.sleep(8.0)  # the run (5.5 s + settling) goes on without anyone watching
 
     stack.start_bridge()

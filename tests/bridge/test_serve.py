@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import signal
 import threading
-import time
 from typing import Any
 
 from robot_stack import COMMS, ROBOT, START, command, latest, open_client
@@ -54,5 +53,4 @@ def test_serve_runs_the_scenario_on_command_and_stops_on_ctrl_c(processes: Proce
 
     launcher.signal(signal.SIGINT)
     assert launcher.wait(20.0) == 0, launcher.output()
-    time.sleep(0.5)
-    assert not router_reachable("127.0.0.1", port), "the router outlived the launcher"
+    wait_until(lambda: not router_reachable("127.0.0.1", port), 2.0, "the launcher's router to go")

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import pytest
 from robot_stack import COMMS, PASSWORDS, REPO, ROBOT, SECURE_CONFIG, START
-from support import Processes, free_port
+from support import SLOWDOWN, Processes, free_port
 
 from protocol.scenario import load_scenario, task_document
 
@@ -27,7 +27,8 @@ DESK_ADDRESS = "10.231.7.2"
 
 OPERATOR = """
 import json, sys, threading, time, zenoh
-robot_address, port, password, robot, task, patience = sys.argv[1:7]
+robot_address, port, password, robot, task, patience, slowdown = sys.argv[1:8]
+slowdown = float(slowdown)  # SCARA_TEST_SLOWDOWN: every bound below is stretched by it
 task = json.loads(task)
 config = zenoh.Config()
 config.insert_json5("mode", '"client"')
@@ -37,7 +38,7 @@ config.insert_json5("scouting/multicast/enabled", "false")
 config.insert_json5("scouting/gossip/enabled", "false")
 config.insert_json5("transport/auth/usrpwd/user", '"operator"')
 config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
-deadline = time.monotonic() + float(patience)  # for the robot's side to come up
+deadline = time.monotonic() + float(patience) * slowdown  # for the robot's side to come up
 while True:
     try:
         session = zenoh.open(config)
@@ -46,7 +47,7 @@ while True:
         if time.monotonic() > deadline:
             sys.exit("cannot open a session")
         time.sleep(0.5)
-deadline = time.monotonic() + 60
+deadline = time.monotonic() + 60 * slowdown
 events, tcp = [], []
 def on_event(sample):
     events.append(json.loads(sample.payload.to_bytes())["event"])
@@ -58,7 +59,7 @@ subscribers = [
 ]
 def ask(key, body=None):
     payload = None if body is None else json.dumps(body)
-    for reply in session.get(key, payload=payload, timeout=5.0):
+    for reply in session.get(key, payload=payload, timeout=5.0 * slowdown):
         if reply.ok is not None:
             return json.loads(reply.ok.payload.to_bytes())
     return None
@@ -146,8 +147,8 @@ def test_an_operator_on_another_host_runs_the_arm_through_the_secure_router(
     task = json.dumps(task_document(load_scenario("reference")))
     operator = subprocess.run(
         [*hosts.desk, sys.executable, "-c", OPERATOR, ROBOT_ADDRESS, str(zenoh_port),
-         PASSWORDS["operator"], ROBOT, task, str(START)],
-        cwd=REPO, capture_output=True, text=True, timeout=START + 90,
+         PASSWORDS["operator"], ROBOT, task, str(START), str(SLOWDOWN)],
+        cwd=REPO, capture_output=True, text=True, timeout=(START + 90) * SLOWDOWN,
     )  # fmt: skip
     assert operator.returncode == 0, f"{operator.stderr}\n{processes.outputs()}"
     seen = json.loads(operator.stdout)
@@ -160,7 +161,7 @@ def test_an_operator_on_another_host_runs_the_arm_through_the_secure_router(
     # and the robot's routers are out of the operator's reach without credentials
     refused = subprocess.run(
         [*hosts.desk, sys.executable, "-c", OPERATOR, ROBOT_ADDRESS, str(zenoh_port),
-         "wrong", ROBOT, task, "3"],
-        cwd=REPO, capture_output=True, text=True, timeout=60,
+         "wrong", ROBOT, task, "3", str(SLOWDOWN)],
+        cwd=REPO, capture_output=True, text=True, timeout=60 * SLOWDOWN,
     )  # fmt: skip
     assert refused.returncode != 0 and "cannot open a session" in refused.stderr

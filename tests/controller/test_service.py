@@ -17,7 +17,7 @@ from typing import Any
 
 import can
 import pytest
-from support import FakeClock, frame
+from support import SLOWDOWN, FakeClock, frame
 
 from bridge.operator import Answer, OperatorNode
 from controller.service import ServiceNode, with_approach
@@ -174,7 +174,7 @@ def test_a_transfer_cut_off_midway_changes_nothing_and_the_next_one_goes_through
     assert len(sent) == 1 and sent[0].data[0] >> 4 == 1  # an ISO-TP first frame
     rig.plant.send(sent[0])
     errors = rig.service.transfers.errors
-    deadline = time.monotonic() + PARAMS["rx_consecutive_frame_timeout"] / 1000 + 1.0
+    deadline = time.monotonic() + PARAMS["rx_consecutive_frame_timeout"] / 1000 + SLOWDOWN
     while rig.service.transfers.errors == errors and time.monotonic() < deadline:
         rig.step()
         time.sleep(0.01)  # can-isotp times a transfer out on its own (real) clock

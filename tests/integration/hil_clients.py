@@ -24,12 +24,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from support import HIL_REQUIRED, ROOT, wait_until
+from support import HIL_REQUIRED, ROOT, SLOWDOWN, wait_until
 
 VCAN = "vcan0"
 DBC = ROOT / "protocol" / "scara.dbc"
 BIND_TIMEOUT = 30.0
-"""s a tool may take to start and bind its socket (an emulated VM starts programs slowly)."""
+"""s a tool may take to start and bind its socket, or to stop (times SLOWDOWN)."""
 
 
 def can_util(name: str) -> str:
@@ -102,7 +102,7 @@ class Candump:
         """SIGINT (candump flushes and exits); the frames it captured."""
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGINT)
-            self.process.wait(BIND_TIMEOUT)
+            self.process.wait(BIND_TIMEOUT * SLOWDOWN)
         self._file.close()
         errors = self._errors.read_text(errors="replace")
         assert "DROP" not in errors.upper(), f"candump dropped frames: {errors}"
@@ -114,7 +114,7 @@ class Candump:
     def __exit__(self, *exc: object) -> None:
         if self.process.poll() is None:
             self.process.kill()
-            self.process.wait(10)
+            self.process.wait(10 * SLOWDOWN)
         self._file.close()
 
 
@@ -132,7 +132,7 @@ def cansend(frames: Sequence[tuple[int, bytes]]) -> None:
         for frame_id, data in frames
     ]
     for process in started:
-        _, errors = process.communicate(timeout=BIND_TIMEOUT)
+        _, errors = process.communicate(timeout=BIND_TIMEOUT * SLOWDOWN)
         assert process.returncode == 0, errors.decode(errors="replace")
 
 
@@ -148,10 +148,10 @@ def background(argv: Sequence[str]) -> Iterator[subprocess.Popen[bytes]]:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
             try:
-                process.wait(10)
+                process.wait(10 * SLOWDOWN)
             except subprocess.TimeoutExpired:
                 process.kill()
-                process.wait(10)
+                process.wait(10 * SLOWDOWN)
         if process.stderr is not None:
             process.stderr.close()
 
@@ -177,7 +177,7 @@ def cantools_decode(capture: Path) -> list[Decoded]:
         done = subprocess.run(
             [sys.executable, "-m", "cantools", "decode", "--single-line",
              "--no-decode-choices", str(DBC)],
-            stdin=stdin, capture_output=True, text=True, timeout=600,
+            stdin=stdin, capture_output=True, text=True, timeout=60 * SLOWDOWN,
         )  # fmt: skip
     assert done.returncode == 0, done.stderr
     decoded = []

@@ -47,7 +47,7 @@ from hil_clients import (
     cantools_decode,
     write_capture,
 )
-from support import SLOWDOWN, Observer, Processes, Transport, hil_marks
+from support import SLOWDOWN, Observer, Processes, Transport, hil_marks, wait_until
 
 from protocol.e2e import RESYNC_AFTER
 from protocol.messages import COMMAND, PLANT_STATUS, STATE_IDS, STEP, on_the_wire_command
@@ -157,18 +157,28 @@ def test_canplayer_replays_the_controller_side_into_a_plant_that_moves_as_in_the
     heard = observer.wait_for(lambda m: m.arbitration_id == PLANT_STATUS.frame_id, HEARD)
     assert heard is not None, processes.outputs()
     played = subprocess.run(
-        [can_util("canplayer"), "-I", str(replay)], capture_output=True, text=True, timeout=1200
-    )
+        [can_util("canplayer"), "-I", str(replay)],
+        capture_output=True, text=True, timeout=40 * SLOWDOWN,
+    )  # fmt: skip
     assert played.returncode == 0, played.stderr
-    time.sleep(1.0)  # the answers to the last frames
+    expected = trajectory(original_frames(captured_run))
+    wait_until(
+        lambda: len(trajectory(observer.frames())) >= len(expected),
+        5.0,
+        "the plant's answers to the last frames",
+    )
     assert plant.interrupt(30) == 0, plant.output()
     received = json.loads((tmp_path / "replay" / "plant_sim.json").read_text())["e2e"]
-    original = [
+    assert trajectory(observer.frames()) == expected, received
+    assert len(expected) > len(read_run(captured_run.out).log.data) / 2
+
+
+def original_frames(run: CapturedRun) -> list[can.Message]:
+    """The frames candump captured during the run, as python-can messages."""
+    return [
         can.Message(arbitration_id=f.frame_id, data=f.data, is_extended_id=False)
-        for f in captured_run.frames
+        for f in run.frames
     ]
-    assert trajectory(observer.frames()) == trajectory(original), received
-    assert len(trajectory(original)) > len(read_run(captured_run.out).log.data) / 2
 
 
 def trajectory(frames: list[can.Message]) -> list[tuple[int, float, float]]:
@@ -205,7 +215,7 @@ def test_bad_frames_from_cansend_are_counted_by_the_plant_and_none_is_acted_on(
     # The controller paused, its last command is the one the plant judges counters against.
     controller.signal(signal.SIGSTOP)
     try:
-        time.sleep(0.05)
+        time.sleep(0.05 * SLOWDOWN)  # for its frames in flight to arrive
         last = [m for m in observer.frames() if m.arbitration_id == COMMAND.frame_id][-1]
         decoded = decode(last)
         assert decoded is not None

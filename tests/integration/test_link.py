@@ -12,16 +12,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from support import ROOT, Process, Processes
+from support import ROOT, SLOWDOWN, Process, Processes
 
 PEER = ROOT / "tests" / "peer.py"
 MEMBERS = 5
 ROUNDS = 20
 PERIOD = 0.01
 """s between two frames of one member."""
-JOIN_GRACE = 1.0
+JOIN_GRACE = 1.0 * SLOWDOWN
 """s after a member has joined from which every other live member must hear it."""
-KILL_MARGIN = 0.2
+KILL_MARGIN = 0.2 * SLOWDOWN
 """s before a kill in which a frame may still have been in flight (lost with its process)."""
 
 
@@ -85,9 +85,9 @@ def test_five_buses_killed_and_restarted_at_random_lose_no_frame_between_live_me
     for index in order:  # random start order, staggered
         live[index] = start(processes, router, index, tmp_path, runs[index])
         lives.append(live[index])
-        time.sleep(rng.uniform(0.0, 0.3))
+        time.sleep(rng.uniform(0.0, 0.3) * SLOWDOWN)
     for _ in range(ROUNDS):
-        time.sleep(rng.uniform(0.4, 1.2))
+        time.sleep(rng.uniform(0.4, 1.2) * SLOWDOWN)  # lives last as long, in ticks
         dead = [i for i in range(MEMBERS) if i not in live]
         if dead and (len(live) <= 2 or rng.random() < 0.5):
             index = rng.choice(dead)
@@ -99,13 +99,13 @@ def test_five_buses_killed_and_restarted_at_random_lose_no_frame_between_live_me
             life = live.pop(index)
             life.killed = time.time()
             life.process.popen.send_signal(signal.SIGKILL)
-            life.process.popen.wait(10)
-    time.sleep(JOIN_GRACE + 0.5)
+            life.process.popen.wait(10 * SLOWDOWN)
+    time.sleep(JOIN_GRACE + 0.5 * SLOWDOWN)
     ended = time.time()
     for life in live.values():
         life.killed = ended
         life.process.popen.send_signal(signal.SIGKILL)
-        life.process.popen.wait(10)
+        life.process.popen.wait(10 * SLOWDOWN)
 
     logs = {id(life): read(life) for life in lives}
     checked = 0

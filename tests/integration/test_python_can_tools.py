@@ -15,7 +15,7 @@ from pathlib import Path
 
 import can
 import pytest
-from support import ROOT, native_stacks, wait_until
+from support import ROOT, SLOWDOWN, native_stacks, wait_until
 
 from protocol.zenoh_can import ZenohBus
 
@@ -61,10 +61,12 @@ def test_can_logger_records_what_the_bus_sends(
         ]
         for msg in sent:
             bus.send(msg)
-        time.sleep(1.0)  # the logger receives as it goes; it writes the file on SIGINT
+        # the logger receives as it goes, writes the file on SIGINT and drops what it has not
+        # taken from its bus by then
+        time.sleep(1.0 * SLOWDOWN)
         logger.send_signal(signal.SIGINT)
         try:
-            _, err = logger.communicate(timeout=20)
+            _, err = logger.communicate(timeout=20 * SLOWDOWN)
         except subprocess.TimeoutExpired:
             raise AssertionError(
                 f"can.logger ignored SIGINT\n{native_stacks(logger.pid)}"
@@ -72,7 +74,7 @@ def test_can_logger_records_what_the_bus_sends(
     finally:
         if logger.poll() is None:
             logger.kill()
-            logger.communicate(timeout=10)
+            logger.communicate(timeout=10 * SLOWDOWN)
     assert logger.returncode == 0, err
     with can.LogReader(log_file) as reader:
         logged = list(reader)
@@ -107,12 +109,12 @@ def test_can_player_replays_a_file_onto_the_bus(
         "--", str(recording),
     )  # fmt: skip
     got: list[can.Message] = []
-    deadline = time.monotonic() + 30
+    deadline = time.monotonic() + 30 * SLOWDOWN
     while len(got) < count and time.monotonic() < deadline:
         message = bus.recv(0.5)
         if message is not None:
             got.append(message)
-    _, err = player.communicate(timeout=30)
+    _, err = player.communicate(timeout=30 * SLOWDOWN)
     assert player.returncode == 0, err
     assert [int(SEQ.unpack_from(m.data)[0]) for m in got] == list(range(count))
     assert all(m.arbitration_id == DATA_ID and not m.is_extended_id for m in got)
@@ -126,11 +128,16 @@ def test_can_viewer_shows_the_plants_frames(router: int) -> None:
         ["tmux", "new-session", "-d", "-s", session, "-x", "160", "-y", "40", viewer], check=True
     )
     try:
-        time.sleep(2.0)
+        probe = ZenohBus("scara", port=router)  # sees the viewer's bus subscribe
+        try:
+            wait_until(lambda: probe.has_receivers, 30.0, "can.viewer's bus to subscribe")
+        finally:
+            probe.shutdown()
         plant = [sys.executable, "-m", "plant_sim.node", "--duration", "3"]
         subprocess.run(
-            [*plant, "--bus-option", f"port={router}"], check=True, timeout=30, capture_output=True
-        )
+            [*plant, "--bus-option", f"port={router}"],
+            check=True, timeout=30 * SLOWDOWN, capture_output=True,
+        )  # fmt: skip
         screen = subprocess.run(
             ["tmux", "capture-pane", "-t", session, "-p"], capture_output=True, text=True
         ).stdout

@@ -20,7 +20,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from support import ROOT, frame
+from support import ROOT, SLOWDOWN, frame
 
 from controller.node import ControllerNode
 from plant_sim.node import PlantNode
@@ -51,10 +51,10 @@ def lockstep_on_virtual(
     server.start()
     try:
         controller = ControllerNode(controller_side(controller_bus), scenario, ClockMode.LOCKSTEP)
-        controller.run_lockstep(startup_timeout=10.0)
+        controller.run_lockstep(startup_timeout=10.0 * SLOWDOWN)
     finally:
         plant.stop()
-        server.join(timeout=5.0)
+        server.join(timeout=5.0 * SLOWDOWN)
         plant_bus.shutdown()
         controller_bus.shutdown()
     return controller
@@ -104,7 +104,7 @@ def _can_make_namespace() -> bool:
     if shutil.which("unshare") is None or shutil.which("ip") is None:
         return False
     probe = subprocess.run(
-        ["unshare", "-n", "sh", "-c", NAMESPACE_SETUP], capture_output=True, timeout=10
+        ["unshare", "-n", "sh", "-c", NAMESPACE_SETUP], capture_output=True, timeout=10 * SLOWDOWN
     )
     return probe.returncode == 0
 
@@ -124,7 +124,7 @@ def test_lockstep_over_udp_multicast_in_a_namespace(tmp_path: Path) -> None:
         cwd=ROOT,
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=120 * SLOWDOWN,
     )
     assert completed.returncode == 0, completed.stderr[-2000:]
     result = json.loads((tmp_path / "controller.json").read_text())
@@ -146,9 +146,9 @@ def test_lockstep_controller_faults_when_the_plant_goes_away(
     server.start()
     try:
         controller = ControllerNode(controller_bus, scenario, ClockMode.LOCKSTEP)
-        controller.run_lockstep(startup_timeout=5.0, max_wall_time=20.0)
+        controller.run_lockstep(startup_timeout=5.0 * SLOWDOWN, max_wall_time=20.0 * SLOWDOWN)
     finally:
-        server.join(timeout=5.0)
+        server.join(timeout=5.0 * SLOWDOWN)
         plant_bus.shutdown()
         controller_bus.shutdown()
     assert not controller.finished

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from support import ROOT, SIGINT_IGNORED
+from support import ROOT, SIGINT_IGNORED, SLOWDOWN
 
 from protocol.cli import number
 
@@ -50,7 +50,7 @@ def test_interruptible_stops_on_sigint_a_process_started_with_it_ignored(restore
     code = "import sys, time\n"
     if restored:
         code += "from protocol.cli import interruptible\ninterruptible()\n"
-    code += "print('ready', flush=True)\ntime.sleep(30)\n"
+    code += "print('ready', flush=True)\ntime.sleep(3600)\n"  # outlasts the wait below
     process = subprocess.Popen(
         [*SIGINT_IGNORED, sys.executable, "-c", code],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -59,7 +59,7 @@ def test_interruptible_stops_on_sigint_a_process_started_with_it_ignored(restore
         assert process.stdout is not None and process.stdout.readline() == "ready\n"
         process.send_signal(signal.SIGINT)
         try:
-            _, err = process.communicate(timeout=10)
+            _, err = process.communicate(timeout=10 * SLOWDOWN)
             stopped = True
         except subprocess.TimeoutExpired:
             stopped = False
@@ -90,7 +90,7 @@ def test_a_command_whose_reader_has_gone_exits_1_without_a_traceback(
         done = subprocess.run(
             [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())",
              *arguments, *outputs],
-            cwd=ROOT, stdout=writer, stderr=subprocess.PIPE, text=True, timeout=120,
+            cwd=ROOT, stdout=writer, stderr=subprocess.PIPE, text=True, timeout=120 * SLOWDOWN,
         )  # fmt: skip
     finally:
         os.close(writer)

@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from support import ROOT
+from support import ROOT, SLOWDOWN
 
 PROBE = """
 import ctypes, json, sys, threading
@@ -25,7 +25,11 @@ print(json.dumps({"applied": applied, "main": libc.prctl(30, 0, 0, 0, 0), "threa
 
 def probe(mode: str) -> dict[str, object]:
     done = subprocess.run(
-        [sys.executable, "-c", PROBE, mode], cwd=ROOT, capture_output=True, text=True, timeout=60
+        [sys.executable, "-c", PROBE, mode],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60 * SLOWDOWN,
     )
     assert done.returncode == 0, done.stderr
     result: dict[str, object] = json.loads(done.stdout)

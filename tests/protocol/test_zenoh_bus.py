@@ -19,7 +19,7 @@ from pathlib import Path
 import can
 import pytest
 import zenoh
-from support import ROOT, frames_with_every_flag, free_port, same_frame, wait_until
+from support import ROOT, SLOWDOWN, frames_with_every_flag, free_port, same_frame, wait_until
 
 from protocol.zenoh_can import ZenohBus
 from protocol.zenoh_can.config import build_zenoh_config, client_config
@@ -56,8 +56,8 @@ def buses(local_router: Router) -> Iterator[Callable[..., ZenohBus]]:
 
 
 def recv_all(bus: can.BusABC, count: int, timeout: float) -> list[can.Message]:
-    """Up to ``count`` frames, or fewer if ``timeout`` passes first."""
-    deadline = time.monotonic() + timeout
+    """Up to ``count`` frames, or fewer if ``timeout`` s (times SLOWDOWN) pass first."""
+    deadline = time.monotonic() + timeout * SLOWDOWN
     got: list[can.Message] = []
     while len(got) < count:
         left = deadline - time.monotonic()
@@ -85,11 +85,13 @@ def peer(*args: str) -> subprocess.Popen[str]:
 
 
 def finish(proc: subprocess.Popen[str], timeout: float) -> str:
+    """The output of a peer process that must exit 0 within ``timeout`` s (times SLOWDOWN)."""
+    timeout *= SLOWDOWN
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         proc.kill()
-        out, err = proc.communicate(timeout=10)
+        out, err = proc.communicate(timeout=10 * SLOWDOWN)
         raise AssertionError(f"peer process did not finish in {timeout} s: {err}") from None
     assert proc.returncode == 0, err
     return out
@@ -147,7 +149,7 @@ def test_no_router_is_reported_with_how_to_start_one(port: int) -> None:
     with pytest.raises(can.CanInitializationError) as caught:
         ZenohBus("x", port=port, open_timeout=0.5)
     assert f"127.0.0.1:{port}" in str(caught.value) and "scara-router" in str(caught.value)
-    assert time.monotonic() - started < 5.0
+    assert time.monotonic() - started < 5.0 * SLOWDOWN
 
 
 def test_a_port_held_by_a_foreign_program_is_reported(port: int) -> None:
@@ -159,7 +161,7 @@ def test_a_port_held_by_a_foreign_program_is_reported(port: int) -> None:
             ZenohBus("x", port=port, open_timeout=1.0)
         elapsed = time.monotonic() - started
     assert str(port) in str(caught.value)
-    assert elapsed < 10.0
+    assert elapsed < 10.0 * SLOWDOWN
 
 
 def test_a_second_router_on_a_taken_port_says_so(local_router: Router) -> None:
@@ -169,12 +171,14 @@ def test_a_second_router_on_a_taken_port_says_so(local_router: Router) -> None:
 
 def test_a_bus_started_before_its_router_waits_for_it(port: int) -> None:
     opened: list[ZenohBus] = []
-    opener = threading.Thread(target=lambda: opened.append(ZenohBus("early", port=port)))
+    opener = threading.Thread(
+        target=lambda: opened.append(ZenohBus("early", port=port, open_timeout=5.0 * SLOWDOWN))
+    )
     opener.start()
     time.sleep(0.5)
     router = Router(port=port)
     try:
-        opener.join(10)
+        opener.join(10 * SLOWDOWN)
         assert opened and opened[0].router_connected
     finally:
         for bus in opened:
@@ -196,7 +200,7 @@ def test_ipv6_loopback_works_too() -> None:
         assert b.zenoh_settings["connect/endpoints"] == [f"tcp/[::1]:{port6}"]
         wait_until(lambda: a.has_receivers, 5, "a receiver")
         a.send(can.Message(arbitration_id=5, is_extended_id=False))
-        msg = b.recv(5)
+        msg = b.recv(5 * SLOWDOWN)
         assert msg is not None and msg.arbitration_id == 5
     finally:
         a.shutdown()
@@ -249,7 +253,7 @@ def test_a_received_frame_carries_the_receive_time(buses: Callable[..., ZenohBus
     wait_until(lambda: a.has_receivers, 5, "a receiver")
     before = time.time()
     a.send(can.Message(timestamp=1.0, arbitration_id=1, is_extended_id=False))
-    msg = b.recv(5)
+    msg = b.recv(5 * SLOWDOWN)
     assert msg is not None and before <= msg.timestamp <= time.time()
 
 
@@ -259,7 +263,8 @@ def test_a_signal_handled_while_recv_waits_does_not_make_the_wait_endless(
     """A node's SIGINT handler runs inside the receive it interrupts. With the receive queue a
     queue.SimpleQueue, a handler that outlasted the timeout left get() waiting with a negative
     timeout, which is for ever: a plant stopped after its controller had finished never saw
-    its stop. The rescue frame, sent 3 s on, only keeps a failing test from hanging."""
+    its stop. The rescue frame, sent 3 s on (times SLOWDOWN), only keeps a failing test from
+    hanging."""
     bus = buses("signalled")
     rescuer = buses("signalled")
     wait_until(lambda: rescuer.has_receivers, 5, "a receiver")
@@ -271,7 +276,7 @@ def test_a_signal_handled_while_recv_waits_does_not_make_the_wait_endless(
 
     previous = signal.signal(signal.SIGUSR2, on_signal)
     poke = threading.Timer(0.02, signal.pthread_kill, (threading.get_ident(), signal.SIGUSR2))
-    rescue = threading.Timer(3.0, rescuer.send, (can.Message(arbitration_id=7),))
+    rescue = threading.Timer(3.0 * SLOWDOWN, rescuer.send, (can.Message(arbitration_id=7),))
     try:
         poke.start()
         rescue.start()
@@ -283,7 +288,7 @@ def test_a_signal_handled_while_recv_waits_does_not_make_the_wait_endless(
         rescue.cancel()
         signal.signal(signal.SIGUSR2, previous)
     assert handled == [signal.SIGUSR2]
-    assert message is None and waited < 1.0, (message, waited)
+    assert message is None and waited < 1.0 * SLOWDOWN, (message, waited)
 
 
 def test_receive_own_messages_delivers_own_frames_marked_tx(
@@ -303,7 +308,7 @@ def test_receive_own_messages_delivers_own_frames_marked_tx(
     assert [m.is_rx for m in theirs] == [True] * 3
     other.send(sent[0])  # without the option, a bus sees none of its own
     assert other.recv(0.2) is None
-    assert talker.recv(5) is not None
+    assert talker.recv(5 * SLOWDOWN) is not None
 
 
 def test_a_malformed_payload_on_the_key_is_counted_and_dropped(
@@ -319,7 +324,7 @@ def test_a_malformed_payload_on_the_key_is_counted_and_dropped(
         for payload in malformed:
             publisher.put(payload)
         publisher.put(good)
-        msg = bus.recv(5)
+        msg = bus.recv(5 * SLOWDOWN)
         assert msg is not None and msg.arbitration_id == 7
         assert bus.rx_malformed == 4
         assert bus.recv(0.2) is None
@@ -344,7 +349,7 @@ def test_shutdown_is_idempotent_and_closes_the_bus_for_use(
     time.sleep(0.1)
     bus.shutdown()
     bus.shutdown()
-    reader.join(5)
+    reader.join(5 * SLOWDOWN)
     assert not reader.is_alive(), "recv(None) stayed blocked after shutdown"
     assert blocked and isinstance(blocked[0], can.CanOperationError)
     with pytest.raises(can.CanOperationError, match="shut down"):
@@ -382,7 +387,7 @@ def test_buses_go_on_after_the_router_restarts(port: int) -> None:
         wait_until(lambda: not a.router_connected, 5, "the buses to lose the router")
         router = Router(port=port)
         got: can.Message | None = None
-        deadline = time.monotonic() + 15
+        deadline = time.monotonic() + 15 * SLOWDOWN
         while got is None and time.monotonic() < deadline:  # they reconnect by themselves
             a.send(can.Message(arbitration_id=0x43, is_extended_id=False))
             got = b.recv(0.05)
@@ -398,15 +403,16 @@ def test_flush_counts_the_buses_that_confirmed(buses: Callable[..., ZenohBus]) -
     buses("flush")
     leaving = buses("flush")
     buses("flush/sub")  # another channel: never counted
-    wait_until(lambda: a.flush(2.0) == 2, 5, "both other buses to answer the flush query")
+    patience = 2.0 * SLOWDOWN  # the flush's own bound
+    wait_until(lambda: a.flush(patience) == 2, 5, "both other buses to answer the flush query")
     leaving.shutdown()
     started = time.monotonic()
-    assert a.flush(2.0) == 1
-    assert time.monotonic() - started < 1.0  # not waiting for the bus that left
+    assert a.flush(patience) == 1
+    assert time.monotonic() - started < patience / 2  # not waiting for the bus that left
     lone = buses("alone")
     started = time.monotonic()
-    assert lone.flush(2.0) == 0
-    assert time.monotonic() - started < 1.0  # nobody to wait for
+    assert lone.flush(patience) == 0
+    assert time.monotonic() - started < patience / 2  # nobody to wait for
 
 
 # --------------------------------------------------------------------------- two processes
@@ -419,7 +425,7 @@ def test_receiver_first_then_a_sender_process_that_sends_at_once(
     receiver = buses("seq")
     sender = peer(
         "send", "--port", str(local_router.port), "--channel", "seq", "--count", str(COUNT),
-        "--wait-receivers", "20",
+        "--wait-receivers", str(20 * SLOWDOWN),
     )  # fmt: skip
     got = recv_all(receiver, COUNT, 30)
     finish(sender, 30)
@@ -433,7 +439,7 @@ def test_sender_process_first_waits_for_the_receiver_to_appear(
     subscription has reached the sender, and from then on nothing it sends is lost."""
     sender = peer(
         "send", "--port", str(local_router.port), "--channel", "seq", "--count", str(COUNT),
-        "--wait-receivers", "30",
+        "--wait-receivers", str(30 * SLOWDOWN),
     )  # fmt: skip
     assert sender.stdout is not None
     assert json.loads(sender.stdout.readline()) == {"ready": True}
@@ -460,7 +466,7 @@ def test_a_sender_that_shuts_down_at_once_still_reaches_a_slow_receiver(
     try:
         sender = peer(
             "send", "--port", str(local_router.port), "--channel", "slow", "--count", str(count),
-            "--wait-receivers", "20", "--linger", "30",
+            "--wait-receivers", str(20 * SLOWDOWN), "--linger", str(30 * SLOWDOWN),
         )  # fmt: skip
         got = recv_all(receiver, count, 60)
         finish(sender, 60)

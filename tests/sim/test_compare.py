@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from support import SLOWDOWN
 
 from controller.fuzzy import RuleBase
 from protocol.errors import ConfigError
@@ -187,12 +188,12 @@ def test_ctrl_c_stops_workers_and_exits_130_without_a_traceback(tmp_path: Path) 
         seen += chunk
     time.sleep(1.0)
     os.killpg(process.pid, signal.SIGINT)
-    _, error = process.communicate(timeout=30)
+    _, error = process.communicate(timeout=30 * SLOWDOWN)
     error = seen + error
     assert process.returncode == 130
     assert "interrupted" in error.decode()
     assert "Traceback" not in error.decode()
-    deadline = time.monotonic() + 10.0  # workers and the resource tracker leave soon after
+    deadline = time.monotonic() + 10.0 * SLOWDOWN  # workers and the resource tracker leave soon
     while subprocess.run(["pgrep", "-g", str(process.pid)], capture_output=True).stdout:
         assert time.monotonic() < deadline, "processes of scara-compare outlived it"
         time.sleep(0.2)
