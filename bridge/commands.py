@@ -1,10 +1,10 @@
 """Commands as they arrive from Zenoh: checked before anything reaches the bus.
 
-A payload is JSON checked against its command's JSON Schema (``protocol/keys.py``): what does
-not fit is :class:`MalformedCommandError`, naming the field, and gets an error reply. A payload that
-fits but would make a task the controller must refuse (a waypoint out of reach or inside the
-obstacle, a path leaving the workspace) is :class:`RefusedError` with the same reason the
-controller would give. Pure: no bus, no Zenoh.
+A payload is JSON checked against its command's JSON Schema (``protocol/validation.py``): what
+does not fit is :class:`MalformedCommandError`, naming the field, and gets an error reply. A
+payload that fits but would make a task the controller must refuse (a waypoint out of reach or
+inside the obstacle, a path leaving the workspace) is :class:`RefusedError` with the same
+reason the controller would give. Pure: no bus, no Zenoh.
 """
 
 from __future__ import annotations
@@ -12,13 +12,11 @@ from __future__ import annotations
 import json
 from typing import Any
 
-import jsonschema
-
 from controller.planner import check_plan
 from protocol.errors import ConfigError, ScaraError
-from protocol.keys import schema
 from protocol.messages import reason_of
 from protocol.scenario import Scenario, parse_task, task_document
+from protocol.validation import SUFFIX, check
 
 TASK_COMMANDS = ("waypoints", "obstacle", "mode")
 """Commands that change the task (sent over ISO-TP); the others are NodeCommands."""
@@ -60,10 +58,11 @@ def parse_payload(command: str, payload: bytes) -> dict[str, Any]:
             body = json.loads(payload.decode())
         except (UnicodeDecodeError, json.JSONDecodeError) as error:
             raise MalformedCommandError("payload", f"not UTF-8 JSON: {error}") from None
-    validator = jsonschema.Draft202012Validator(schema(f"cmd-{command}"))
-    worst = jsonschema.exceptions.best_match(validator.iter_errors(body))
-    if worst is not None:
-        raise MalformedCommandError(_field(worst.absolute_path) or "payload", worst.message)
+    try:
+        check(body, f"cmd-{command}{SUFFIX}", root="payload")
+    except ConfigError as error:
+        message = str(error).removeprefix(f"{error.field}: ")
+        raise MalformedCommandError(error.field, message) from None
     result: dict[str, Any] = body
     return result
 
@@ -95,11 +94,3 @@ def edit_task(
             reason, error.field, str(error).removeprefix(f"{error.field}: ")
         ) from None
     return task
-
-
-def _field(path: Any) -> str:
-    """``waypoints[1].x`` from a JSON Schema error's path."""
-    text = ""
-    for part in path:
-        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
-    return text

@@ -66,17 +66,10 @@ class EllipticCylinder:
     inflation: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("x", "y", "long_diameter", "short_diameter", "height", "yaw", "inflation"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"obstacle.{name}", f"must be a finite number, got {value!r}")
-        for name in ("long_diameter", "short_diameter", "height"):
-            if getattr(self, name) <= 0.0:
-                raise ConfigError(f"obstacle.{name}", "must be positive")
+        """What the obstacle's schema cannot say (``protocol/validation.py`` checks the rest:
+        finite, positive sizes, a non-negative inflation)."""
         if self.short_diameter > self.long_diameter:
             raise ConfigError("obstacle.short_diameter", "must not exceed long_diameter")
-        if self.inflation < 0.0:
-            raise ConfigError("obstacle.inflation", "must not be negative")
 
     @property
     def semi_axes(self) -> tuple[float, float]:

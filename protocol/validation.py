@@ -79,14 +79,15 @@ def bundled(name: str) -> dict[str, Any]:
     return document
 
 
-def check(document: object, reference: str, field: str = "") -> None:
+def check(document: object, reference: str, field: str = "", root: str = "document") -> None:
     """Refuse ``document`` with a :class:`ConfigError` unless it fits the schema at
     ``reference``, relative to the schemas' folder (``task.schema.json``,
     ``definitions.schema.json#/$defs/controller``); ``field`` names where the document sits
-    (``controller``), so that the error names the whole path (``controller.rate_hz``)."""
+    (``controller``), so that the error names the whole path (``controller.rate_hz``), and
+    ``root`` the document itself where it is wrong as a whole (``payload``)."""
     error = best_match(_validator(reference).iter_errors(document))
     if error is not None:
-        raise _config_error(error, field)
+        raise _config_error(error, field, root)
 
 
 def field_name(*parts: str | int) -> str:
@@ -171,7 +172,7 @@ def _known_properties(schema: Mapping[str, Any]) -> set[str]:
     return known
 
 
-def _config_error(error: ValidationError, field: str) -> ConfigError:
+def _config_error(error: ValidationError, field: str, root: str) -> ConfigError:
     where = field_name(field, *error.absolute_path)
     keyword, instance, schema = error.validator, error.instance, error.schema
     if keyword == "required":
@@ -180,10 +181,9 @@ def _config_error(error: ValidationError, field: str) -> ConfigError:
     if keyword in ("additionalProperties", "unevaluatedProperties"):
         known = _known_properties(schema)
         unknown = sorted(str(name) for name in instance if name not in known)[0]
-        return ConfigError(
-            field_name(where, unknown), f"unknown field; known: {', '.join(sorted(known))}"
-        )
-    return ConfigError(where or "document", _message(error))
+        listed = f"known: {', '.join(sorted(known))}" if known else "none is known"
+        return ConfigError(field_name(where, unknown), f"unknown field; {listed}")
+    return ConfigError(where or root, _message(error))
 
 
 def _message(error: ValidationError) -> str:

@@ -28,7 +28,7 @@ OBSTACLE = task_document(REFERENCE)["obstacle"]
         ("mode", b"{", "payload"),
         ("mode", b"\xff", "payload"),
         ("mode", b'{"mode": "sideways"}', "mode"),
-        ("mode", b'{"mode": "fuzzy", "speed": 2}', "payload"),
+        ("mode", b'{"mode": "fuzzy", "speed": 2}', "speed"),
         ("waypoints", b'{"waypoints": [{"t": 0, "x": 0.3, "y": 0.1}]}', "waypoints"),
         (
             "waypoints",
@@ -44,7 +44,7 @@ OBSTACLE = task_document(REFERENCE)["obstacle"]
             "obstacle.long_diameter",
         ),
         ("run", b"[1]", "payload"),
-        ("estop", b'{"now": true}', "payload"),
+        ("estop", b'{"now": true}', "now"),
     ],
 )
 def test_a_malformed_payload_is_an_error_naming_the_field(
