@@ -9,7 +9,9 @@ Measures, side by side in one run:
 3. the in-process simulation of the reference scenario: wall time and real-time factor.
 
 Prints a Markdown table with each target and PASS/FAIL; ``--json PATH`` also writes the numbers.
-Run from the project root: ``python benchmarks/bench_core.py [--quick] [--json PATH]``.
+Run from the project root: ``python benchmarks/bench_core.py [--quick] [--json PATH]``;
+``--before REV [--rounds N]`` runs it on revision REV's code and on this tree's, in turns, and
+prints both side by side.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from against import add_against_arguments, side_by_side
 
 from controller.control_law import ControlLaw
 from controller.fuzzy import FuzzyInference, RuleBase
@@ -404,11 +407,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--quick", action="store_true", help="a shorter, noisier run")
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers here")
+    add_against_arguments(parser)
     args = parser.parse_args(argv)
     settings = QUICK if args.quick else FULL
 
     def say(message: str) -> None:
         print(message, file=sys.stderr, flush=True)
+
+    if args.before:
+        print(
+            side_by_side(
+                Path(__file__).name, args.before, ["--quick"] * args.quick, args.rounds, say
+            )
+        )
+        return 0
 
     started = time.perf_counter()
     rows, notes = run(settings, say)

@@ -13,7 +13,9 @@ Measures:
    compared with the batch's (they must agree to 1e-9).
 
 Prints a Markdown table with each target and PASS/FAIL; ``--json PATH`` also writes the numbers.
-Run from the project root: ``python benchmarks/bench_study.py [--count N] [--quick] [--json PATH]``.
+Run from the project root: ``python benchmarks/bench_study.py [--count N] [--quick] [--json PATH]``;
+``--before REV [--rounds N]`` runs it on revision REV's code and on this tree's, in turns, and
+prints both side by side.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
+from against import add_against_arguments, side_by_side
 
 from protocol.scenario import Mode, Scenario
 from sim.measures import Measures
@@ -240,6 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help=f"{QUICK_COUNT} scenarios")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers here")
+    add_against_arguments(parser)
     args = parser.parse_args(argv)
     count = args.count or (QUICK_COUNT if args.quick else FULL_COUNT)
     if count < SCALAR_SAMPLE * 2 or args.workers < 1:
@@ -247,6 +251,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     def say(message: str) -> None:
         print(message, file=sys.stderr, flush=True)
+
+    if args.before:
+        passed_on = ["--count", str(count), "--workers", str(args.workers)]
+        print(side_by_side(Path(__file__).name, args.before, passed_on, args.rounds, say))
+        return 0
 
     started = time.perf_counter()
     rows, notes = run(count, args.workers, say)

@@ -267,9 +267,7 @@ class MeasureStream:
         """Count runs of at least STOP_MIN_TICKS slow ticks, across blocks: each where it
         ends, a run still going at the end of a block where the next one starts fast.
 
-        That last case went uncounted until a run stopped for 3 ticks up to the end of a
-        64-tick block of the batch simulator (``gen-19-8816``: 1 stop in the scalar
-        simulation, 0 in the batch, the same stop margin in both)."""
+        Counted so, a run's stops do not depend on the blocks its log is fed in."""
         if not len(slow):
             return
         self._stops += (self._slow_run >= STOP_MIN_TICKS) & ~slow[0]

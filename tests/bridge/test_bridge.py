@@ -236,7 +236,7 @@ def test_an_authorised_operator_runs_the_arm_around_the_obstacle_and_others_cann
         ),
         ("obstacle", json.dumps({"obstacle": {"x": 0.4, "y": 0.0}}), "obstacle"),
         ("mode", json.dumps({"mode": "turbo"}), "mode"),
-        ("run", json.dumps({"speed": 2}), "payload"),
+        ("run", json.dumps({"speed": 2}), "speed"),
     ],
 )
 def test_a_malformed_command_gets_an_error_naming_the_field_and_changes_nothing(
