@@ -106,8 +106,10 @@ def avoid_obstacle(
     side = ops.where(engaged, ops.where(side == 0, chosen, side), 0)
     command = ops.branch(
         engaged,
-        lambda *inputs: _avoid(ops, config, *inputs),
+        _avoid,
         STOP,
+        ops,
+        config,
         aim,
         side,
         heading,
@@ -143,8 +145,9 @@ def _avoid(
     edge_y = ops.where(left_hand, left_y, right_y)
     edge_angle = ops.branch(
         ops.not_(outside),
-        lambda *inputs: _along_boundary(ops, *inputs),
+        _along_boundary,
         ops.atan2(edge_y - py, edge_x - px),
+        ops,
         aim,
         side,
         px,

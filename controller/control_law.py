@@ -320,11 +320,7 @@ def step(
     depth_before = _depth(ops, stage.room_before, to_before)
     # The waypoint the plan waits for: p_j-1 until the TCP has passed it, then p_j.
     waiting_next = ops.max(index - 1, ops.min(reached + 1, index)) == index
-    waited = (
-        ops.where(waiting_next, stage.point[0], stage.point_before[0]),
-        ops.where(waiting_next, stage.point[1], stage.point_before[1]),
-        ops.where(waiting_next, stage.point[2], stage.point_before[2]),
-    )
+    waited = ops.where(waiting_next, stage.point, stage.point_before)
     pull = (1.0 - rate) * ops.where(waiting_next, depth_next, depth_before)
     goal = _goal(ops, stage, progress, behind)
     heading = state.heading
@@ -368,10 +364,7 @@ def step(
         ops,
         config.position_gain,
         waited,
-        (
-            ops.where(waiting_next, stage.leaving[0], stage.leaving_before[0]),
-            ops.where(waiting_next, stage.leaving[1], stage.leaving_before[1]),
-        ),
+        ops.where(waiting_next, stage.leaving, stage.leaving_before),
         ops.where(waiting_next, to_next, to_before),
         tcp,
     )
@@ -389,8 +382,10 @@ def step(
     # plan, not back at the waiting reference, when the arm comes onto the waypoint.
     omega = ops.branch(
         looping > 0.0,
-        lambda *inputs: _turn_with_loop(ops, config.heading_gain, *inputs),
+        _turn_with_loop,
         blended.omega,
+        ops,
+        config.heading_gain,
         blended.omega,
         heading,
         pull * looping,
@@ -542,8 +537,10 @@ def final_approach(
     share = ops.where(away == 0.0, 0.0, smoothstep(ops, against / LOOP_AGAINST))
     return ops.branch(
         share != 0.0,
-        lambda *inputs: _loop(ops, gain, *inputs),
+        _loop,
         (straight_x, straight_y, 0.0),
+        ops,
+        gain,
         share,
         (to_x, to_y),
         leaving,
@@ -681,16 +678,18 @@ def _limit(ops: Ops, law: Law, wanted: Point3, previous: Point3) -> tuple[Point3
     Scaling all joints together keeps the direction the TCP moves in (speed limit) and the
     direction of the change (acceleration limit), unlike clipping each joint on its own.
     """
+    # (A size that is 0 is never over its limit: + (size == 0.0) only keeps its unused
+    # quotient finite.)
     scale = 1.0
     for rate, limit in zip(wanted, law.speed_limits, strict=True):
         size = abs(rate)
-        over = size * scale > limit
-        scale = ops.where(over, limit / ops.where(over, size, 1.0), scale)
+        scale = ops.where(size * scale > limit, limit / (size + (size == 0.0)), scale)
     step_scale = 1.0
     for rate, last, limit in zip(wanted, previous, law.step_limits, strict=True):
         change = abs(rate * scale - last)
-        over = change * step_scale > limit
-        step_scale = ops.where(over, limit / ops.where(over, change, 1.0), step_scale)
+        step_scale = ops.where(
+            change * step_scale > limit, limit / (change + (change == 0.0)), step_scale
+        )
     command = (
         previous[0] + (wanted[0] * scale - previous[0]) * step_scale,
         previous[1] + (wanted[1] * scale - previous[1]) * step_scale,

@@ -70,8 +70,10 @@ def weights(
     )
     k_t, k_c = ops.branch(
         present & fuzzy,
-        lambda *inputs: _fuzzy_weights(ops, coordination, *inputs),
+        _fuzzy_weights,
         (coordination.k_t_without_obstacle, 0.0),
+        ops,
+        coordination,
         min_distance,
         measurement.beta,
         clearance,

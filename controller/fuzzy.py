@@ -39,7 +39,8 @@ class Trapezoid:
     d: float
 
     def __call__(self, x: float) -> float:
-        return float(membership(SCALAR, x, self.a, self.b, self.c, self.d))
+        shoulder = self.a == self.b or self.c == self.d
+        return float(memberships(SCALAR, x, ((self.a, self.b, self.c, self.d, shoulder),))[0])
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,8 +152,8 @@ class FuzzyInference:
     def __init__(self, rule_base: RuleBase) -> None:
         self.rule_base = rule_base
         distance, beta = rule_base.inputs["min_distance"], rule_base.inputs["beta"]
-        self.distance_terms = tuple((t.a, t.b, t.c, t.d) for t in distance.terms.values())
-        self.beta_terms = tuple((t.a, t.b, t.c, t.d) for t in beta.terms.values())
+        self.distance_terms = _shapes(distance)
+        self.beta_terms = _shapes(beta)
         self.distance_range = distance.universe
         self.beta_range = beta.universe
         distance_index = {name: i for i, name in enumerate(distance.terms)}
@@ -182,13 +183,11 @@ class FuzzyInference:
 def infer(ops: Ops, inference: FuzzyInference, min_distance: Real, beta: Real) -> tuple[Real, Real]:
     """k_T and k_C of ``inference``'s rule base for the inputs (clamped to their universes)."""
     low, high = inference.distance_range
-    min_distance = ops.where(
-        min_distance < low, low, ops.where(min_distance > high, high, min_distance)
-    )
+    min_distance = ops.min(ops.max(min_distance, low), high)
     low, high = inference.beta_range
-    beta = ops.where(beta < low, low, ops.where(beta > high, high, beta))
-    mu_distance = [membership(ops, min_distance, *term) for term in inference.distance_terms]
-    mu_beta = [membership(ops, beta, *term) for term in inference.beta_terms]
+    beta = ops.min(ops.max(beta, low), high)
+    mu_distance = memberships(ops, min_distance, inference.distance_terms)
+    mu_beta = memberships(ops, beta, inference.beta_terms)
     fired_t: list[Real] = [0.0, 0.0, 0.0]
     fired_c: list[Real] = [0.0, 0.0, 0.0]
     for distance_term, beta_term, term_t, term_c in inference.rules:
@@ -201,12 +200,38 @@ def infer(ops: Ops, inference: FuzzyInference, min_distance: Real, beta: Real) -
     )
 
 
-def membership(ops: Ops, x: Real, a: float, b: float, c: float, d: float) -> Real:
-    """The trapezoid rising a->b, 1 on [b, c], falling c->d (a == b or c == d: a shoulder)."""
-    rising = (x - a) / (b - a if a < b else 1.0)
-    falling = (d - x) / (d - c if c < d else 1.0)
-    inner = ops.where(x < b, rising, ops.where(x <= c, 1.0, falling))
-    return ops.where((x < a) | (x > d), 0.0, inner)
+def memberships(
+    ops: Ops, x: Real, terms: Sequence[tuple[float, float, float, float, bool]]
+) -> list[Real]:
+    """How far ``x`` is in each of ``terms``: trapezoids (a, b, c, d, feet) rising a->b, 1 on
+    [b, c], falling c->d (a == b or c == d: a shoulder); ``feet``: whether ``x`` may lie
+    beyond the foot of a shoulder (not where it is clamped to a universe the shoulder ends).
+
+    The rising edge (capped at 1) and the falling edge, the lesser of the two, not below 0:
+    the piecewise definition to the last bit.
+    """
+    levels = []
+    for a, b, c, d, feet in terms:
+        level = 1.0
+        if a < b:
+            level = ops.min((x - a) / (b - a), level)
+        if c < d:
+            level = ops.min(level, (d - x) / (d - c))
+        if a < b or c < d:
+            level = ops.max(level, 0.0)
+        if feet:
+            level = ops.where((x < a) | (x > d), 0.0, level)
+        levels.append(level)
+    return levels
+
+
+def _shapes(fuzzy_input: FuzzyInput) -> tuple[tuple[float, float, float, float, bool], ...]:
+    """An input's terms for :func:`memberships`, clamped to its universe."""
+    low, high = fuzzy_input.universe
+    return tuple(
+        (t.a, t.b, t.c, t.d, (t.a == t.b and t.a > low) or (t.c == t.d and t.d < high))
+        for t in fuzzy_input.terms.values()
+    )
 
 
 def centroid_of_partition(peaks: Sequence[float], fired: Sequence[float]) -> float:
@@ -250,15 +275,14 @@ def centroid(ops: Ops, peaks: Sequence[float], fired: Sequence[Real]) -> Real:
 
 
 def _rising(ops: Ops, level: Real, upto: Real) -> tuple[Real, Real]:
-    """Integrals of min(level, u) and u*min(level, u) over [0, upto], upto in [0, 1]."""
-    full = upto <= level
+    """Integrals of min(level, u) and u*min(level, u) over [0, upto], upto in [0, 1].
+
+    Where upto <= level the edge is u all the way: the formula with level = upto gives
+    upto^2 / 2 and upto^3 / 3 to the last bit (halving is exact, and the second term is 0)."""
+    level = ops.min(level, upto)
     return (
-        ops.where(full, upto * upto * 0.5, level * (upto - level * 0.5)),
-        ops.where(
-            full,
-            upto * upto * upto / 3.0,
-            level * level * level / 3.0 + level * (upto * upto - level * level) * 0.5,
-        ),
+        level * (upto - level * 0.5),
+        level * level * level / 3.0 + level * (upto * upto - level * level) * 0.5,
     )
 
 

@@ -31,6 +31,7 @@ What DM reports, seen from the tool centre point (TCP) looking towards the next 
 from __future__ import annotations
 
 import math
+from functools import cache
 from typing import NamedTuple
 
 from protocol.geometry import (
@@ -73,6 +74,7 @@ class ObstacleMeasurement(NamedTuple):
         return min(self.d_left, self.d_right)
 
 
+@cache
 def absent(sensing_range: float) -> ObstacleMeasurement:
     """The measurement when no obstacle is in reach (none, beyond range, or tool above it)."""
     return ObstacleMeasurement(
@@ -117,8 +119,10 @@ def sense(
     reach = section.a + sensing_range + REACH_MARGIN
     return ops.branch(
         ops.not_(pz >= section.top) & (dx * dx + dy * dy < reach * reach),
-        lambda *near: _sense_near(ops, sensing_range, *near),
+        _sense_near,
         absent(sensing_range),
+        ops,
+        sensing_range,
         section,
         px,
         py,
@@ -141,8 +145,10 @@ def _sense_near(
     clearance, nearest_x, nearest_y = nearest_point(ops, section, lx, ly)
     return ops.branch(
         ops.not_(clearance >= sensing_range),
-        lambda *present: _sense_present(ops, sensing_range, *present),
+        _sense_present,
         absent(sensing_range),
+        ops,
+        sensing_range,
         section,
         px,
         py,

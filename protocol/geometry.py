@@ -264,8 +264,9 @@ def ellipse_distance(ops: Ops, a: Real, b: Real, u: Real, v: Real) -> tuple[Real
     cy = ops.where(on_short, b, cy)
     return ops.branch(
         (u != 0.0) & (v != 0.0),
-        lambda a, b, u, v, inside: _ellipse_distance_off_axes(ops, a, b, u, v, inside),
+        _ellipse_distance_off_axes,
         (distance, cx, cy),
+        ops,
         a,
         b,
         u,

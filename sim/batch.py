@@ -28,8 +28,9 @@ from controller.coordination import Coordination
 from controller.fuzzy import RuleBase
 from controller.planner import plan_of
 from plant_sim.model import integrate
+from protocol.array_ops import rebuilt, take
 from protocol.messages import joints_on_the_wire, rates_on_the_wire
-from protocol.ops import ARRAY, rebuilt, take
+from protocol.ops import ARRAY
 from protocol.scenario import Mode, Scenario
 from sim.measures import Measures, MeasureStream
 
