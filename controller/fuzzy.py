@@ -176,8 +176,7 @@ class FuzzyInference:
         """k_T and k_C for one pair of inputs (clamped to their universes)."""
         if min_distance != min_distance or beta != beta:
             raise ValueError(f"fuzzy inputs must not be NaN: ({min_distance}, {beta})")
-        k_t, k_c = infer(SCALAR, self, min_distance, beta)
-        return k_t, k_c
+        return infer(SCALAR, self, min_distance, beta)
 
 
 def infer(ops: Ops, inference: FuzzyInference, min_distance: Real, beta: Real) -> tuple[Real, Real]:
@@ -190,42 +189,51 @@ def infer(ops: Ops, inference: FuzzyInference, min_distance: Real, beta: Real) -
     mu_beta = memberships(ops, beta, inference.beta_terms)
     fired_t: list[Real] = [0.0, 0.0, 0.0]
     fired_c: list[Real] = [0.0, 0.0, 0.0]
+    minimum, maximum = ops.min, ops.max  # bound once: this runs on most control ticks
     for distance_term, beta_term, term_t, term_c in inference.rules:
-        strength = ops.min(mu_distance[distance_term], mu_beta[beta_term])
-        fired_t[term_t] = ops.max(fired_t[term_t], strength)
-        fired_c[term_c] = ops.max(fired_c[term_c], strength)
+        strength = minimum(mu_distance[distance_term], mu_beta[beta_term])
+        fired_t[term_t] = maximum(fired_t[term_t], strength)
+        fired_c[term_c] = maximum(fired_c[term_c], strength)
     return (
         centroid(ops, inference.peaks_t, fired_t),
         centroid(ops, inference.peaks_c, fired_c),
     )
 
 
-def memberships(
-    ops: Ops, x: Real, terms: Sequence[tuple[float, float, float, float, bool]]
-) -> list[Real]:
+Shape = tuple[float, float, float, float, bool]
+"""A trapezoid for :func:`memberships`: a, b, c, d and ``feet``."""
+
+
+def memberships(ops: Ops, x: Real, terms: Sequence[Shape]) -> list[Real]:
     """How far ``x`` is in each of ``terms``: trapezoids (a, b, c, d, feet) rising a->b, 1 on
     [b, c], falling c->d (a == b or c == d: a shoulder); ``feet``: whether ``x`` may lie
     beyond the foot of a shoulder (not where it is clamped to a universe the shoulder ends).
 
-    The rising edge (capped at 1) and the falling edge, the lesser of the two, not below 0:
-    the piecewise definition to the last bit.
+    The lesser of the rising and the falling edge, capped at 1 (not needed for a triangle:
+    one edge is below 1 wherever the other is above) and not below 0: the piecewise
+    definition to the last bit.
     """
+    minimum, maximum = ops.min, ops.max  # bound once: this runs on most control ticks
     levels = []
     for a, b, c, d, feet in terms:
-        level = 1.0
-        if a < b:
-            level = ops.min((x - a) / (b - a), level)
-        if c < d:
-            level = ops.min(level, (d - x) / (d - c))
-        if a < b or c < d:
-            level = ops.max(level, 0.0)
+        if a < b and c < d:
+            level = minimum((x - a) / (b - a), (d - x) / (d - c))
+            if b < c:
+                level = minimum(level, 1.0)
+            level = maximum(level, 0.0)
+        elif a < b:
+            level = maximum(minimum((x - a) / (b - a), 1.0), 0.0)
+        elif c < d:
+            level = maximum(minimum((d - x) / (d - c), 1.0), 0.0)
+        else:
+            level = 1.0
         if feet:
             level = ops.where((x < a) | (x > d), 0.0, level)
         levels.append(level)
     return levels
 
 
-def _shapes(fuzzy_input: FuzzyInput) -> tuple[tuple[float, float, float, float, bool], ...]:
+def _shapes(fuzzy_input: FuzzyInput) -> tuple[Shape, ...]:
     """An input's terms for :func:`memberships`, clamped to its universe."""
     low, high = fuzzy_input.universe
     return tuple(
