@@ -294,9 +294,11 @@ def step(
     # The waypoint passed (within PASSED): AO forgets its TL/TR choice, made on the way to
     # it, and chooses afresh on the way to the next.
     for candidate, point in ((index - 1, stage.point_before), (index, stage.point)):
-        passed = (candidate > reached) & (distance(ops, tcp, point) <= PASSED)
-        reached = ops.where(passed, candidate, reached)
-        side = ops.where(passed, 0, side)
+        ahead = candidate > reached
+        if ops.any(ahead):
+            passed = ahead & (distance(ops, tcp, point) <= PASSED)
+            reached = ops.where(passed, candidate, reached)
+            side = ops.where(passed, 0, side)
     # Plane distances several parts of the law use: the TCP's to p_j and p_j-1, the
     # reference's to p_j.
     to_next = length(ops, tcp[0] - stage.point[0], tcp[1] - stage.point[1])

@@ -82,14 +82,16 @@ def branch(condition: Any, compute: Callable[..., Any], otherwise: Any, *argumen
     return _scattered(part, otherwise, rows, count)
 
 
-def converge(step: Callable[..., tuple[Any, ...]], state: tuple[Any, ...], most: int) -> Any:
-    """``state = step(*state)`` for every run until its first element (still going) is false,
-    at most ``most`` times; once at most half the runs are still going, only those are
-    stepped on."""
+def converge(
+    step: Callable[..., tuple[Any, ...]], state: tuple[Any, ...], most: int, *constants: Any
+) -> Any:
+    """``state = step(*state, *constants)`` for every run until its first element (still
+    going) is false, at most ``most`` times; once at most half the runs are still going, only
+    those are stepped on (``constants`` are not per run)."""
     result = [np.array(value, copy=True) for value in state]
     active = np.arange(np.size(state[0]))
     for _ in range(most):
-        state = step(*state)
+        state = step(*state, *constants)
         going = state[0]
         count = np.count_nonzero(going)
         if count == 0:

@@ -283,9 +283,10 @@ def _ellipse_distance_off_axes(
     only a few digits). Both starts are below the root (either term alone is 1 there)."""
     gap = a * a - b * b
     _, s, *_ = ops.converge(
-        lambda going, s, a_u, b_v, gap: _newton_step(ops, going, s, a_u, b_v, gap),
+        _newton_step,
         (ops.full(u, True), ops.max(b * v, a * u - gap), a * u, b * v, gap),
         NEWTON_ITERATIONS,
+        ops,
     )
     cx, cy = a * a * u / (s + gap), b * b * v / s
     found = length(ops, cx - u, cy - v)
@@ -293,7 +294,7 @@ def _ellipse_distance_off_axes(
 
 
 def _newton_step(
-    ops: Ops, going: Mask, s: Real, a_u: Real, b_v: Real, gap: Real
+    going: Mask, s: Real, a_u: Real, b_v: Real, gap: Real, ops: Ops
 ) -> tuple[Mask, Real, Real, Real, Real]:
     """One Newton step of :func:`_ellipse_distance_off_axes` where still ``going``."""
     shifted = s + gap

@@ -6,10 +6,11 @@ are the DBC's value-table labels in upper case, e.g. ``NodeState.RUNNING``; they
 import, so static type checkers see them as ``Any``. :func:`reason_of` is the Reason a task's
 error gets on the wire (the controller's answer, and the bridge's refusal before sending).
 
-Also the wire quantisation as a function: the in-process simulation passes the joint state
-and the command through :func:`on_the_wire_state` and :func:`on_the_wire_command`, so it sees
-exactly the values a controller and a plant see over CAN, and a lockstep co-simulation gives
-bit-identical results.
+Also the wire's quantisation as functions: :func:`on_the_wire_state` and
+:func:`on_the_wire_command` through the codec's records, and :func:`joints_on_the_wire` and
+:func:`rates_on_the_wire` computing the same values directly, for one arm or a batch's runs,
+which the in-process simulations use: they see exactly the values a controller and a plant see
+over CAN, and a lockstep co-simulation gives bit-identical results.
 """
 
 from __future__ import annotations
@@ -126,24 +127,28 @@ _RATES = _wire_of(tuple(COMMAND.spec[name] for name in ("Theta1Rate", "Theta2Rat
 
 def joints_on_the_wire(
     ops: Ops, position: tuple[Real, Real, Real], velocity: tuple[Real, Real, Real]
-) -> tuple[tuple[Real, ...], tuple[Real, ...]]:
+) -> tuple[tuple[Real, Real, Real], tuple[Real, Real, Real]]:
     """:func:`on_the_wire_state` for values the codec's range checks would pass (the plant
     keeps positions within the joint limits and speeds within the speed limits, which
     ``check_robot_fits_wire`` keeps within the wire's ranges): one arm, or a batch's runs."""
-    return (
-        tuple(
-            quantised(ops, value, *wire) for value, wire in zip(position, _POSITION, strict=True)
-        ),
-        tuple(
-            quantised(ops, value, *wire) for value, wire in zip(velocity, _VELOCITY, strict=True)
-        ),
-    )
+    return _on_the_wire(ops, position, _POSITION), _on_the_wire(ops, velocity, _VELOCITY)
 
 
-def rates_on_the_wire(ops: Ops, rates: tuple[Real, Real, Real]) -> tuple[Real, ...]:
+def rates_on_the_wire(ops: Ops, rates: tuple[Real, Real, Real]) -> tuple[Real, Real, Real]:
     """:func:`on_the_wire_command` for commands within the speed limits (the law keeps them
     there): one arm, or a batch's runs."""
-    return tuple(quantised(ops, value, *wire) for value, wire in zip(rates, _RATES, strict=True))
+    return _on_the_wire(ops, rates, _RATES)
+
+
+def _on_the_wire(
+    ops: Ops, values: tuple[Real, Real, Real], wires: tuple[tuple[float, float, int, int], ...]
+) -> tuple[Real, Real, Real]:
+    first, second, third = wires
+    return (
+        quantised(ops, values[0], *first),
+        quantised(ops, values[1], *second),
+        quantised(ops, values[2], *third),
+    )
 
 
 def on_the_wire_command(rates: Joints) -> Joints:

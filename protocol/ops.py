@@ -59,10 +59,15 @@ class Ops(Protocol):
         ...
 
     def converge(
-        self, step: Callable[..., tuple[Any, ...]], state: tuple[Any, ...], most: int, /
+        self,
+        step: Callable[..., tuple[Any, ...]],
+        state: tuple[Any, ...],
+        most: int,
+        /,
+        *constants: Any,
     ) -> Any:
-        """``state = step(*state)`` for each run until its first element (still going) is
-        false, at most ``most`` times."""
+        """``state = step(*state, *constants)`` for each run until its first element (still
+        going) is false, at most ``most`` times."""
         ...
 
 

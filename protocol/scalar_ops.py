@@ -69,11 +69,13 @@ def branch(
     return compute(*arguments) if condition else otherwise
 
 
-def converge(step: Callable[..., tuple[Any, ...]], state: tuple[Any, ...], most: int) -> Any:
-    """``state = step(*state)`` until its first element (still going) is false, at most
-    ``most`` times; the last state."""
+def converge(
+    step: Callable[..., tuple[Any, ...]], state: tuple[Any, ...], most: int, *constants: Any
+) -> Any:
+    """``state = step(*state, *constants)`` until its first element (still going) is false,
+    at most ``most`` times; the last state."""
     for _ in range(most):
-        state = step(*state)
+        state = step(*state, *constants)
         if not state[0]:
             break
     return state

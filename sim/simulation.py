@@ -1,8 +1,9 @@
 """The in-process simulation: control law and plant model stepped in one fixed-step loop.
 
 Deterministic: the same scenario and mode give bit-identical logs, since nothing here reads a
-clock or draws a random number. The joint state and the command pass through the CAN codec
-on their way, so the values are quantised exactly as they are between the processes.
+clock or draws a random number. The joint state and the command are quantised on their way as
+the CAN codec quantises them (``protocol.messages``), so the values are exactly those between
+the processes.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ from dataclasses import dataclass
 from controller.control_law import ControlLaw
 from controller.runlog import RunLog, row_of
 from plant_sim.model import PlantModel
-from protocol.messages import on_the_wire_command, on_the_wire_state
+from protocol.messages import joints_on_the_wire, rates_on_the_wire
+from protocol.ops import SCALAR
 from protocol.scenario import Mode, Scenario
 from sim.measures import Measures, compute_measures
 
@@ -36,8 +38,8 @@ def simulate(scenario: Scenario, mode: Mode | None = None) -> SimulationRun:
     log = RunLog(ticks)
     for tick in range(ticks):
         t = start + tick * period
-        position, velocity = on_the_wire_state(plant.position, plant.velocity)
+        position, velocity = joints_on_the_wire(SCALAR, plant.position, plant.velocity)
         output = law.step(t, position)
         log.append(row_of(t, position, velocity, output, t))
-        plant.advance(on_the_wire_command(output.command), period)
+        plant.advance(rates_on_the_wire(SCALAR, output.command), period)
     return SimulationRun(scenario, log, compute_measures(scenario, log))
