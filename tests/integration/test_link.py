@@ -56,10 +56,13 @@ Received = dict[tuple[int, int], list[int]]
 
 def read(life: Life) -> tuple[float, list[tuple[float, int]], Received]:
     """(joined, [(time, seq) sent], {(index, run) of a sender: [seq received]}) from its log
-    (a line cut off by the kill is skipped)."""
+    (a line cut off by the kill is skipped). No log: the life was killed before its process
+    got going (on a loaded machine start-up can outlast a life): it never joined."""
     joined = float("nan")
     sent: list[tuple[float, int]] = []
     got: Received = {}
+    if not life.log.exists():
+        return joined, sent, got
     for line in life.log.read_text().splitlines():
         words = line.split()
         if words and words[0] == "joined" and len(words) == 2:
