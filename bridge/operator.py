@@ -90,13 +90,14 @@ class OperatorNode(Node):
         self._pending: dict[int, Pending] = {}
         self._ticket = 0
         self.frames = 0
-        self.transfers = IsoTpLink(
-            lambda message: self._transmit([message]),
-            SCENARIO_UPLOAD.frame_id,
-            SCENARIO_DOWNLOAD.frame_id,
-            on_error=lambda error: self.log.warning("scenario transfer broken: %s", error),
+        self.transfers = self.add_link(
+            IsoTpLink(
+                lambda message: self._transmit([message]),
+                SCENARIO_UPLOAD.frame_id,
+                SCENARIO_DOWNLOAD.frame_id,
+                on_error=lambda error: self.log.warning("scenario transfer broken: %s", error),
+            )
         )
-        self.isotp = self.transfers
 
     # --- frames in -----------------------------------------------------------------------
 
@@ -137,11 +138,13 @@ class OperatorNode(Node):
         self.transfers.send(encode_task(task, ticket))
 
     def request(self, request: Any, reply: Reply) -> None:
-        """A NodeCommand (run, reset, stop, describe) for the controller."""
+        """A NodeCommand (run, reset, stop, describe) for the controller; a reset for every
+        node (an e-stop latched them all), answered by the controller."""
         answered = Answered[Request(request).name]
         ticket = self._next_ticket(answered, reply)
+        target = NodeId.ALL if request == Request.RESET else NodeId.CONTROLLER
         record = NODE_COMMAND.Record(
-            Command=request, Target=NodeId.CONTROLLER, Source=NodeId.OPERATOR, Ticket=ticket
+            Command=request, Target=target, Source=NodeId.OPERATOR, Ticket=ticket
         )
         self.send(NODE_COMMAND, record)
 

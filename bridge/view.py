@@ -77,6 +77,7 @@ class RobotView:
         self.collision = False
         self.at_stop: list[str] = []
         self.steps = 0
+        self.world = 0
         self.coordination: dict[str, Any] | None = None
         self.coordination_time = 0.0
         self._behaviour = "none"
@@ -146,6 +147,7 @@ class RobotView:
             NodeState(record.State).name.lower(), faults, record.BadFrames, received
         )
         self.steps = record.Extra
+        self.world = record.World
         return events
 
     def _on_run(self, record: Any) -> list[Event]:
@@ -218,6 +220,7 @@ class RobotView:
                 "collision": self.collision,
                 "at_stop": self.at_stop,
                 "steps": self.steps,
+                "world": self.world,
             },
             "bridge": bridge,
         }

@@ -89,6 +89,23 @@ PREALLOCATED_ROWS = 65536
 
 
 @dataclass(slots=True)
+class PlantSeen:
+    """The plant as its last PlantStatus showed it."""
+
+    state: Any = None
+    """NodeState; None before the first PlantStatus."""
+    faults: int = 0
+    """PlantFault bits."""
+    world: int = 0
+    heard: float = -float("inf")
+    """When it came, on the controller's clock."""
+
+
+PLANT_STOPS_A_RUN = PlantFault.JOINT_LIMIT | PlantFault.COLLISION | PlantFault.ESTOP
+"""Plant faults that end a run under way: the arm no longer follows the commands."""
+
+
+@dataclass(slots=True)
 class JointState:
     position: Joints
     velocity: Joints
@@ -143,11 +160,14 @@ class ControllerNode(Node):
         self._awaiting: dict[int, float] = {}  # command counter -> wall time it was sent
         self._parts = JointStateParts()
         self.state: JointState | None = None
+        self.plant = PlantSeen()
         self._round_trip = LOCKSTEP_RETRY / 2.0
         """s from a lockstep command to its answer, smoothed (the first retry waits twice)."""
         self.ticks_to_run = self.tick = self.slot = 0  # no run prepared yet
         self._next_waypoint = self._approach = 0
         self._last_output: ControlOutput | None = None
+        self.log_rows: RunLog | None = None
+        """The log of the run prepared last (a service has none before its first run)."""
         self.on_reset()
 
     def on_reset(self) -> None:
@@ -182,10 +202,17 @@ class ControllerNode(Node):
         if codec.frame_id in STATE_IDS:
             joint = STATE_IDS.index(codec.frame_id)
             self._on_state_part(joint, counter, record, message.timestamp)
-        elif codec is PLANT_STATUS and record.FaultCode & (
-            PlantFault.JOINT_LIMIT | PlantFault.COLLISION
-        ):
-            self.enter_fault(ControllerFault.PLANT_FAULT)
+        elif codec is PLANT_STATUS:
+            self.plant = PlantSeen(
+                NodeState(record.State), record.FaultCode, record.World, self.clock()
+            )
+            # Only a run under way: a status sent before the plant took a reset can still
+            # arrive after the controller took the same reset.
+            if record.FaultCode & PLANT_STOPS_A_RUN and self.node_state in (
+                NodeState.RUNNING,
+                NodeState.HOLD,
+            ):
+                self.enter_fault(ControllerFault.PLANT_FAULT)
 
     def _on_state_part(self, joint: int, counter: int, record: Any, received: float) -> None:
         """Collect JointState1-3; a complete, consistent set is the newest joint state."""
@@ -261,7 +288,8 @@ class ControllerNode(Node):
         t = start + self.tick * self.period
         output = self.law.step(t, state.position)
         clock = start + self.slot * self.period
-        self.log_rows.append(row_of(t, state.position, state.velocity, output, clock))
+        if self.log_rows is not None:  # always, once a run is prepared
+            self.log_rows.append(row_of(t, state.position, state.velocity, output, clock))
         self.tick += 1
         self._last_output = output
         waypoints = self.scenario.waypoints
@@ -485,9 +513,10 @@ class ControllerNode(Node):
 
     def save(self, out: Path, result: dict[str, Any]) -> None:
         super().save(out, result)
-        np.savez_compressed(
-            out / "controller_log.npz", data=self.log_rows.data, columns=np.array(COLUMNS)
-        )
+        if self.log_rows is not None:
+            np.savez_compressed(
+                out / "controller_log.npz", data=self.log_rows.data, columns=np.array(COLUMNS)
+            )
 
     @property
     def exit_code(self) -> int:

@@ -14,6 +14,12 @@ ControllerAnswer frame carrying the request's ticket (accepted, or rejected with
 - **reset**: faults and e-stop cleared, back to idle, the task kept;
 - **describe**: the task in force, sent back over ISO-TP on ScenarioDownload.
 
+The task's obstacle is the plant's world too (:mod:`protocol.world`): the service numbers it,
+sends it to the plant over ISO-TP (WorldUpload) and again while the plant's PlantStatus shows
+another number (a restarted plant); a new obstacle is answered once the plant holds it (or after
+:data:`WORLD_WAIT`). A run starts only with a plant that is heard, ready (no e-stop, no fault)
+and holding the task's world: otherwise it is refused with the reason, and nothing moves.
+
 A run keeps every rule of the one-shot controller (holds on comms loss, latched fault after
 the comms-loss timeout) and, with ``--out``, writes its result and log when it ends.
 """
@@ -38,14 +44,18 @@ from protocol.messages import (
     CONTROLLER_ANSWER,
     SCENARIO_DOWNLOAD,
     SCENARIO_UPLOAD,
+    WORLD_FLOW,
+    WORLD_UPLOAD,
     Answered,
     NodeState,
+    PlantFault,
     Reason,
     Request,
     reason_of,
 )
 from protocol.node import ClockMode
 from protocol.scenario import Scenario, Waypoint, encode_task, parse_task, read_task
+from protocol.world import STARTUP_WORLD, World, next_world
 
 APPROACH_SPEED = 0.1
 """m/s: the mean speed of the approach segment to the task's first waypoint."""
@@ -53,6 +63,15 @@ MIN_APPROACH = 0.5
 """s: the shortest approach segment."""
 ALREADY_THERE = 0.001
 """m: closer than this to the first waypoint, a run needs no approach segment."""
+PLANT_HEARD = 0.5
+"""s after its last PlantStatus (10 Hz) the plant still counts as there."""
+WORLD_RESEND = 0.5
+"""s between two sends of a world the plant does not report holding."""
+WORLD_WAIT = 1.0
+"""s a new obstacle's answer waits at most for the plant to hold it (then it is accepted: the
+task is the controller's; a run waits for the world)."""
+PLANT_READY = (NodeState.READY, NodeState.RUNNING)
+"""Plant states a run may start in (the plant stays running once commanded)."""
 
 
 class ServiceNode(ControllerNode):
@@ -84,13 +103,27 @@ class ServiceNode(ControllerNode):
             sleep=sleep,
             wall_clock=wall_clock,
         )
-        self.transfers = IsoTpLink(
-            self._transmit_one,
-            SCENARIO_DOWNLOAD.frame_id,
-            SCENARIO_UPLOAD.frame_id,
-            on_error=lambda error: self.log.warning("scenario transfer broken: %s", error),
+        self.transfers = self.add_link(
+            IsoTpLink(
+                self._transmit_one,
+                SCENARIO_DOWNLOAD.frame_id,
+                SCENARIO_UPLOAD.frame_id,
+                on_error=lambda error: self.log.warning("scenario transfer broken: %s", error),
+            )
         )
-        self.isotp = self.transfers
+        self.worlds = self.add_link(
+            IsoTpLink(
+                self._transmit_one,
+                WORLD_UPLOAD.frame_id,
+                WORLD_FLOW.frame_id,
+                on_error=lambda error: self.log.warning("world transfer broken: %s", error),
+            )
+        )
+        self.world = None if task is None else World.of(task, next_world(STARTUP_WORLD))
+        """The world of the task in force, as the plant must hold it."""
+        self._world_sent = -float("inf")
+        self._task_answer: tuple[int, float] | None = None
+        """A new obstacle's answer waiting for the plant: (ticket, give up at)."""
 
     def _transmit_one(self, message: can.Message) -> None:
         self._transmit([message])
@@ -114,6 +147,10 @@ class ServiceNode(ControllerNode):
 
     def on_run_complete(self) -> None:
         self._end_run()
+
+    def result(self) -> dict[str, Any]:
+        """The last run's result, and how many runs the service made."""
+        return super().result() | {"runs": self.runs, "completed": self.runs > 0 and self.finished}
 
     def _end_run(self) -> None:
         """Back to idle; the run's result and log written to ``out``, if given."""
@@ -163,6 +200,9 @@ class ServiceNode(ControllerNode):
         state = self.state
         if state is None or self.clock() - self._last_fresh > self.comms_timeout:
             return Reason.NO_JOINT_STATE
+        refusal = self._plant_refusal()
+        if refusal is not None:
+            return refusal
         try:
             run, approach = with_approach(self.task, forward(self.task.robot, *state.position))
         except ConfigError:
@@ -174,10 +214,43 @@ class ServiceNode(ControllerNode):
 
     # --- tasks over ISO-TP -----------------------------------------------------------------
 
+    def _plant_refusal(self) -> Any:
+        """Why the plant cannot take a run now (None: it can)."""
+        plant = self.plant
+        if self.clock() - plant.heard > PLANT_HEARD:
+            self.log.info("run refused: no PlantStatus for %g s", PLANT_HEARD)
+            return Reason.PLANT_NOT_READY
+        if plant.state not in PLANT_READY or plant.faults & ~PlantFault.COMMAND_TIMEOUT:
+            faults = PlantFault(plant.faults)
+            self.log.info("run refused: the plant is %s (%s)", plant.state, faults)
+            return Reason.PLANT_NOT_READY
+        if self.world is not None and plant.world != self.world.number:
+            self.log.info(
+                "run refused: the plant holds world %d, not %d", plant.world, self.world.number
+            )
+            return Reason.WORLD_PENDING
+        return None
+
     def serve(self, now: float) -> None:
-        """Take the transfers completed since the last tick."""
+        """Take the transfers completed since the last tick; keep the plant's world the
+        task's."""
         for payload in self.transfers.poll():
             self._on_task(payload)
+        self.worlds.poll()
+        world = self.world
+        if world is None:
+            return
+        synced = self.plant.world == world.number
+        heard = now - self.plant.heard <= PLANT_HEARD
+        if not synced and heard and now - self._world_sent >= WORLD_RESEND:
+            self.worlds.send(world.encode())
+            self._world_sent = now
+            self.log.info("world %d sent to the plant", world.number)
+        if self._task_answer is not None:
+            ticket, give_up = self._task_answer
+            if synced or not heard or now >= give_up:
+                self._task_answer = None
+                self._answer(Answered.SCENARIO, ticket, Reason.NONE)
 
     def _on_task(self, payload: bytes) -> None:
         try:
@@ -198,7 +271,18 @@ class ServiceNode(ControllerNode):
             return
         self.task = task
         self.log.info("task %s set (%d waypoints)", task.name, len(task.waypoints))
-        self._answer(Answered.SCENARIO, ticket, Reason.NONE)
+        world = self.world
+        if world is not None and (task.obstacle, task.tool_radius) == (
+            world.obstacle,
+            world.tool_radius,
+        ):
+            self._answer(Answered.SCENARIO, ticket, Reason.NONE)
+            return
+        self.world = World.of(task, next_world(STARTUP_WORLD if world is None else world.number))
+        self._world_sent = -float("inf")
+        if self._task_answer is not None:  # the task before, never held: its answer now
+            self._answer(Answered.SCENARIO, self._task_answer[0], Reason.NONE)
+        self._task_answer = (ticket, self.clock() + WORLD_WAIT)  # answered by serve()
 
 
 def with_approach(task: Scenario, tcp: tuple[float, float, float]) -> tuple[Scenario, int]:

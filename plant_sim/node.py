@@ -13,6 +13,9 @@ under the command it names, and the plant answers (see the DBC's comment on Step
 
 Both modes: the joint limits are hard stops reported as faults; a collision of the tool with
 the obstacle (ground truth: the obstacle grown by the tool radius) is reported in PlantStatus.
+The obstacle is the world's (:mod:`protocol.world`): the scenario file's at start, then the one
+the controller service sends over ISO-TP (WorldUpload) for the task in force; PlantStatus.World
+says which. A reset brings the arm back to its start and clears the faults; the world stays.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ import can
 from plant_sim.model import PlantModel
 from protocol.cli import number, quiet_on_closed_pipe
 from protocol.codec import MessageCodec
+from protocol.errors import ConfigError
+from protocol.isotp_link import IsoTpLink
 from protocol.kinematics import forward
 from protocol.messages import (
     COMMAND,
@@ -35,6 +40,8 @@ from protocol.messages import (
     PLANT_STATUS,
     STATE,
     STEP,
+    WORLD_FLOW,
+    WORLD_UPLOAD,
     Counter,
     NodeId,
     NodeState,
@@ -43,6 +50,7 @@ from protocol.messages import (
 )
 from protocol.node import ClockMode, Node, NodeSetup, add_node_arguments, node_main
 from protocol.scenario import Scenario, load_scenario
+from protocol.world import STARTUP_WORLD, World, read_world
 
 COMMAND_TIMEOUT = 0.020
 """s without a valid command before the plant brakes to zero (real-time mode)."""
@@ -58,6 +66,8 @@ class PlantStats:
     collisions: int = 0
     command_timeouts: int = 0
     unknown_step_requests: int = 0
+    worlds_received: int = 0
+    worlds_refused: int = 0
 
 
 class PlantNode(Node):
@@ -80,9 +90,18 @@ class PlantNode(Node):
         self.scenario = scenario
         self.clock_mode = clock_mode
         self.period = scenario.controller.period
-        self.obstacle = scenario.touched_obstacle()
+        self.world = World.of(scenario, STARTUP_WORLD)
+        self.obstacle = self.world.touched()
         self.stats = PlantStats()
         self._state_counter = Counter()
+        self.worlds = self.add_link(
+            IsoTpLink(
+                lambda message: self._transmit([message]),
+                WORLD_FLOW.frame_id,
+                WORLD_UPLOAD.frame_id,
+                on_error=lambda error: self.log.warning("world transfer broken: %s", error),
+            )
+        )
         self._restart()
 
     def on_reset(self) -> None:
@@ -91,7 +110,7 @@ class PlantNode(Node):
         self._send_state()
 
     def _restart(self) -> None:
-        """Back to the scenario's first waypoint, at rest, faults cleared."""
+        """Back to the scenario's first waypoint, at rest, faults cleared (the world kept)."""
         self.model = PlantModel(
             self.scenario.robot, self.scenario.plant, position=self.scenario.initial_joints()
         )
@@ -148,6 +167,20 @@ class PlantNode(Node):
             self._send_state()
         else:
             self.stats.unknown_step_requests += 1
+
+    def take_worlds(self) -> None:
+        """The worlds completed since the last look: the last valid one is the plant's."""
+        for payload in self.worlds.poll():
+            try:
+                world = read_world(payload)
+            except ConfigError as error:
+                self.stats.worlds_refused += 1
+                self.log.warning("world refused: %s", error)
+                continue
+            self.world = world
+            self.obstacle = world.touched()
+            self.stats.worlds_received += 1
+            self.log.info("world %d: %s", world.number, world.obstacle or "no obstacle")
 
     # --- the model ---------------------------------------------------------------------------
 
@@ -209,6 +242,10 @@ class PlantNode(Node):
         )
         self.stats.states_sent += 1
 
+    def reported(self) -> tuple[Any, ...]:
+        """The world too: the controller service runs a task once the plant holds its world."""
+        return (*super().reported(), self.world.number)
+
     def statuses(self) -> list[tuple[MessageCodec, Any]]:
         flags = PlantFlag(0)
         if self.collided:
@@ -221,7 +258,8 @@ class PlantNode(Node):
             FaultCode=int(self.fault),
             Flags=int(flags),
             BadFrames=min(self.monitor.counts.bad, 0xFFFF),
-            Extra=self.stats.steps & 0xFFFF,
+            World=self.world.number,
+            Extra=self.stats.steps & 0xFF,
         )
         return [(PLANT_STATUS, status)]
 
@@ -239,6 +277,7 @@ class PlantNode(Node):
             message = self.bus.recv(timeout=max(0.0, min(wait, next_status - now)))
             if message is not None:
                 self.handle(message)
+            self.take_worlds()
             now = self.clock()
             if self.clock_mode is ClockMode.REALTIME and now >= next_tick:
                 self.on_period(now)

@@ -41,6 +41,8 @@ COORDINATION = WIRE["ControllerCoordination"]
 RUN_STATUS = WIRE["ControllerRun"]
 SCENARIO_UPLOAD = WIRE.isotp["ScenarioUpload"]
 SCENARIO_DOWNLOAD = WIRE.isotp["ScenarioDownload"]
+WORLD_UPLOAD = WIRE.isotp["WorldUpload"]
+WORLD_FLOW = WIRE.isotp["WorldFlow"]
 
 NodeState: Any = WIRE.enum("NodeState", ("ControllerStatus", "State"), ("PlantStatus", "State"))
 NodeId: Any = WIRE.enum("NodeId", ("NodeCommand", "Target"), ("NodeCommand", "Source"))

@@ -79,10 +79,10 @@ class Node:
         self.node_state = NodeState.READY
         self.fault = self.Fault(0)
         self.send_failures = 0
-        self.isotp: IsoTpLink | None = None
-        """An ISO-TP link whose receive ID this node's reader hands over (see ``handle``)."""
+        self._links: dict[int, IsoTpLink] = {}
+        """ISO-TP links by receive ID: their frames go to them, not through the E2E checks."""
         self._next_status = -float("inf")
-        self._reported: tuple[Any, Any] | None = None
+        self._reported: tuple[Any, ...] | None = None
 
     # --- frames in ----------------------------------------------------------------------
 
@@ -101,8 +101,9 @@ class Node:
 
     def handle(self, message: can.Message) -> None:
         """Act on one received frame, or count it and drop it."""
-        if self.isotp is not None and message.arbitration_id == self.isotp.rxid:
-            self.isotp.feed(message)
+        link = self._links.get(message.arbitration_id)
+        if link is not None:
+            link.feed(message)
             return
         accepted = self.monitor.accept(message, self._accepted)
         if accepted is None:
@@ -115,6 +116,12 @@ class Node:
                 self.on_request(Request(record.Command), record.Ticket)
         else:
             self.on_frame(codec, counter, record, message)
+
+    def add_link(self, link: IsoTpLink) -> IsoTpLink:
+        """Hand ``link`` the frames of its receive ID from now on (this node's reader is the
+        bus's only one); ``link``."""
+        self._links[link.rxid] = link
+        return link
 
     def on_frame(
         self, codec: MessageCodec, counter: int, record: Any, message: can.Message
@@ -186,7 +193,7 @@ class Node:
     def send_status_if_due(self, now: float) -> None:
         """The status frames, together, once per the status frame's DBC cycle time, and at
         once when the node's state or faults change (so a listener sees every transition)."""
-        reported = (self.node_state, self.fault)
+        reported = self.reported()
         if now >= self._next_status or reported != self._reported:
             self._reported = reported
             frames = [
@@ -197,6 +204,10 @@ class Node:
             except EncodeError as error:
                 self.log.error("status not sent: %s", error)
             self._next_status = now + (self.status.cycle_time or 0.1)
+
+    def reported(self) -> tuple[Any, ...]:
+        """What a listener must hear of at once when it changes: the state and the faults."""
+        return (self.node_state, self.fault)
 
     def statuses(self) -> list[tuple[MessageCodec, Any]]:
         """The cyclic status frames of this node, :attr:`status` among them, sent together

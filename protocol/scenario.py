@@ -72,12 +72,6 @@ class Scenario:
     plant: PlantConfig = field(default_factory=PlantConfig)
     tool_radius: float = 0.01
 
-    def touched_obstacle(self) -> EllipticCylinder | None:
-        """The obstacle grown by the tool radius only: what the tool really collides with."""
-        if self.obstacle is None:
-            return None
-        return self.obstacle.grown(self.tool_radius - self.obstacle.inflation)
-
     def initial_joints(self) -> tuple[float, float, float]:
         first = self.waypoints[0]
         return inverse(self.robot, first.x, first.y, first.z, self.elbow)
@@ -141,19 +135,24 @@ def task_document(scenario: Scenario) -> dict[str, Any]:
         "settle_time": scenario.settle_time,
         "waypoints": [{"t": w.t, "x": w.x, "y": w.y, "z": w.z} for w in scenario.waypoints],
     }
-    obstacle = scenario.obstacle
-    if obstacle is not None:
-        document["obstacle"] = {
-            "x": obstacle.x,
-            "y": obstacle.y,
-            "long_diameter": obstacle.long_diameter,
-            "short_diameter": obstacle.short_diameter,
-            "height": obstacle.height,
-            "yaw_deg": round(math.degrees(obstacle.yaw), 9),  # 30, not 29.999999999999996
-            "tool_radius": scenario.tool_radius,
-            "margin": round(obstacle.inflation - scenario.tool_radius, 12),
-        }
+    if scenario.obstacle is not None:
+        document["obstacle"] = obstacle_document(scenario.obstacle, scenario.tool_radius)
     return document
+
+
+def obstacle_document(obstacle: EllipticCylinder, tool_radius: float) -> dict[str, Any]:
+    """``obstacle`` (inflated by ``tool_radius`` and a margin) as the table a task or a
+    scenario file writes, which :func:`obstacle_of` reads back."""
+    return {
+        "x": obstacle.x,
+        "y": obstacle.y,
+        "long_diameter": obstacle.long_diameter,
+        "short_diameter": obstacle.short_diameter,
+        "height": obstacle.height,
+        "yaw_deg": round(math.degrees(obstacle.yaw), 9),  # 30, not 29.999999999999996
+        "tool_radius": tool_radius,
+        "margin": round(obstacle.inflation - tool_radius, 12),
+    }
 
 
 def scenario_document(scenario: Scenario) -> dict[str, Any]:
@@ -198,17 +197,17 @@ def read_task(payload: bytes) -> tuple[int, dict[str, Any]]:
 
 def _with_task(base: Scenario, document: Mapping[str, Any], name: str) -> Scenario:
     """``base`` with the task of ``document``, which fits the task's schema."""
-    obstacle_table = document.get("obstacle")
+    obstacle, tool_radius = obstacle_of(document.get("obstacle"))
     scenario = replace(
         base,
         name=name,
         waypoints=_waypoints(document["waypoints"]),
-        obstacle=None if obstacle_table is None else _obstacle(obstacle_table),
+        obstacle=obstacle,
         mode=Mode(document.get("mode", Mode.FUZZY.value)),
         elbow=Elbow.UP if document.get("elbow", "down") == "up" else Elbow.DOWN,
         settle_time=float(document.get("settle_time", 1.0)),
         description=document.get("description", ""),
-        tool_radius=float((obstacle_table or {}).get("tool_radius", DEFAULT_TOOL_RADIUS)),
+        tool_radius=tool_radius,
     )
     if scenario.duration > MAX_DURATION:
         raise ConfigError(
@@ -275,14 +274,21 @@ def _waypoints(entries: list[Mapping[str, float]]) -> tuple[Waypoint, ...]:
     return waypoints
 
 
-def _obstacle(table: Mapping[str, float]) -> EllipticCylinder:
-    return EllipticCylinder(
+def obstacle_of(
+    table: Mapping[str, float] | None,
+) -> tuple[EllipticCylinder | None, float]:
+    """The obstacle of a table that fits the obstacle's schema (None: no obstacle), inflated
+    by the tool radius and the margin, and the tool radius."""
+    if table is None:
+        return None, DEFAULT_TOOL_RADIUS
+    tool_radius = float(table.get("tool_radius", DEFAULT_TOOL_RADIUS))
+    obstacle = EllipticCylinder(
         x=float(table["x"]),
         y=float(table["y"]),
         long_diameter=float(table["long_diameter"]),
         short_diameter=float(table["short_diameter"]),
         height=float(table["height"]),
         yaw=math.radians(table.get("yaw_deg", 0.0)),
-        inflation=float(table.get("tool_radius", DEFAULT_TOOL_RADIUS))
-        + float(table.get("margin", DEFAULT_MARGIN)),
+        inflation=tool_radius + float(table.get("margin", DEFAULT_MARGIN)),
     )
+    return obstacle, tool_radius

@@ -11,6 +11,9 @@ on SocketCAN vcan0, the router then carrying only the bridge's keys).
 from __future__ import annotations
 
 import json
+import math
+import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +35,66 @@ PASSWORDS = dict(
     line.split(":", 1)
     for line in (REPO / "config" / "zenoh" / "credentials.txt").read_text().split()
 )
+
+STATE_KEYS = ("joints", "tcp", "coordination", "status", "events", "scenario")
+RUN_TIME = 40.0
+"""s a reference run may take from `run` to its end on a loaded machine (6.5 s unloaded)."""
+
+REFERENCE = {
+    "waypoints": [
+        {"t": 0.0, "x": 0.30, "y": -0.25, "z": 0.25},
+        {"t": 1.5, "x": 0.45, "y": -0.15, "z": 0.22},
+        {"t": 4.0, "x": 0.43, "y": 0.20, "z": 0.22},
+        {"t": 5.5, "x": 0.25, "y": 0.32, "z": 0.26},
+    ],
+    "obstacle": {
+        "x": 0.455, "y": -0.01, "long_diameter": 0.10, "short_diameter": 0.06,
+        "height": 0.30, "yaw_deg": 30.0, "tool_radius": 0.01, "margin": 0.01,
+    },
+}  # fmt: skip
+
+
+class Recorder:
+    """Every sample of the state keys: (key, receive time, payload).
+
+    One subscriber per key, as a monitor on the secure router must: its rules name the keys
+    a reader may subscribe to, and ``scara/<robot>/**`` (which covers ``cmd/**``) is not one.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.samples: list[tuple[str, float, dict[str, Any]]] = []
+        self._lock = threading.Lock()
+        self._subscribers = [
+            session.declare_subscriber(f"scara/{ROBOT}/{name}", self._on_sample)
+            for name in STATE_KEYS
+        ]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr).removeprefix(f"scara/{ROBOT}/")
+        payload = json.loads(sample.payload.to_bytes())
+        with self._lock:
+            self.samples.append((name, time.time(), payload))
+
+    def of(self, name: str) -> list[tuple[float, dict[str, Any]]]:
+        with self._lock:
+            return [(received, payload) for key, received, payload in self.samples if key == name]
+
+    def events(self) -> list[dict[str, Any]]:
+        return [payload for _, payload in self.of("events")]
+
+    def event(self, name: str) -> dict[str, Any] | None:
+        return next((e for e in self.events() if e["event"] == name), None)
+
+
+def inside_obstacle(x: float, y: float) -> bool:
+    obstacle = REFERENCE["obstacle"]
+    yaw = math.radians(obstacle["yaw_deg"])
+    dx, dy = x - obstacle["x"], y - obstacle["y"]
+    u = dx * math.cos(yaw) + dy * math.sin(yaw)
+    v = -dx * math.sin(yaw) + dy * math.cos(yaw)
+    return (u / (obstacle["long_diameter"] / 2)) ** 2 + (
+        v / (obstacle["short_diameter"] / 2)
+    ) ** 2 <= 1
 
 
 def open_client(port: int, user: str | None = None, password: str | None = None) -> zenoh.Session:

@@ -7,9 +7,7 @@ project code): what a monitor in any language would do.
 from __future__ import annotations
 
 import json
-import math
 import signal
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -18,28 +16,24 @@ import jsonschema
 import pytest
 import zenoh
 from referencing import Registry, Resource
-from robot_stack import PASSWORDS, ROBOT, Stack, command, latest, open_client
+from robot_stack import (
+    PASSWORDS,
+    REFERENCE,
+    ROBOT,
+    RUN_TIME,
+    STATE_KEYS,
+    Recorder,
+    Stack,
+    command,
+    inside_obstacle,
+    latest,
+    open_client,
+)
 from support import SLOWDOWN, hil_marks, real_time_needed, wait_until
 
 from protocol.keys import EVERY_SAMPLE_KEYS
 
 SCHEMAS = Path(__file__).resolve().parents[2] / "protocol" / "schemas"
-STATE_KEYS = ("joints", "tcp", "coordination", "status", "events", "scenario")
-RUN_TIME = 40.0
-"""s a reference run may take from `run` to its end on a loaded machine (6.5 s unloaded)."""
-
-REFERENCE = {
-    "waypoints": [
-        {"t": 0.0, "x": 0.30, "y": -0.25, "z": 0.25},
-        {"t": 1.5, "x": 0.45, "y": -0.15, "z": 0.22},
-        {"t": 4.0, "x": 0.43, "y": 0.20, "z": 0.22},
-        {"t": 5.5, "x": 0.25, "y": 0.32, "z": 0.26},
-    ],
-    "obstacle": {
-        "x": 0.455, "y": -0.01, "long_diameter": 0.10, "short_diameter": 0.06,
-        "height": 0.30, "yaw_deg": 30.0, "tool_radius": 0.01, "margin": 0.01,
-    },
-}  # fmt: skip
 
 
 def schema_validator(name: str) -> jsonschema.Draft202012Validator:
@@ -50,38 +44,6 @@ def schema_validator(name: str) -> jsonschema.Draft202012Validator:
         (document["$id"], Resource.from_contents(document)) for document in documents.values()
     )
     return jsonschema.Draft202012Validator(documents[f"{name}.schema.json"], registry=registry)
-
-
-class Recorder:
-    """Every sample of the state keys: (key, receive time, payload).
-
-    One subscriber per key, as a monitor on the secure router must: its rules name the keys
-    a reader may subscribe to, and ``scara/<robot>/**`` (which covers ``cmd/**``) is not one.
-    """
-
-    def __init__(self, session: zenoh.Session) -> None:
-        self.samples: list[tuple[str, float, dict[str, Any]]] = []
-        self._lock = threading.Lock()
-        self._subscribers = [
-            session.declare_subscriber(f"scara/{ROBOT}/{name}", self._on_sample)
-            for name in STATE_KEYS
-        ]
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        name = str(sample.key_expr).removeprefix(f"scara/{ROBOT}/")
-        payload = json.loads(sample.payload.to_bytes())
-        with self._lock:
-            self.samples.append((name, time.time(), payload))
-
-    def of(self, name: str) -> list[tuple[float, dict[str, Any]]]:
-        with self._lock:
-            return [(received, payload) for key, received, payload in self.samples if key == name]
-
-    def events(self) -> list[dict[str, Any]]:
-        return [payload for _, payload in self.of("events")]
-
-    def event(self, name: str) -> dict[str, Any] | None:
-        return next((e for e in self.events() if e["event"] == name), None)
 
 
 def set_reference_task(operator: zenoh.Session, mode: str = "fuzzy") -> None:
@@ -103,17 +65,6 @@ def set_reference_task(operator: zenoh.Session, mode: str = "fuzzy") -> None:
         )
 
     wait_until(described, 5.0, "the controller to describe the task it holds")
-
-
-def inside_obstacle(x: float, y: float) -> bool:
-    obstacle = REFERENCE["obstacle"]
-    yaw = math.radians(obstacle["yaw_deg"])
-    dx, dy = x - obstacle["x"], y - obstacle["y"]
-    u = dx * math.cos(yaw) + dy * math.sin(yaw)
-    v = -dx * math.sin(yaw) + dy * math.cos(yaw)
-    return (u / (obstacle["long_diameter"] / 2)) ** 2 + (
-        v / (obstacle["short_diameter"] / 2)
-    ) ** 2 <= 1
 
 
 def test_every_key_arrives_at_its_rate_and_fits_its_schema_and_a_late_joiner_sees_the_arm(

@@ -49,7 +49,7 @@ class Bus:
             Behaviour=behaviour, Holds=0, Waypoint=waypoint, Progress=progress, LatenessMax=40
         )
         status = CONTROLLER_STATUS.Record(
-            State=state, FaultCode=faults, Flags=flags, BadFrames=0, Extra=3
+            State=state, FaultCode=faults, Flags=flags, BadFrames=0, World=0, Extra=3
         )
         before = len(self.events)
         for codec, record in (
@@ -62,7 +62,7 @@ class Bus:
 
     def plant(self, flags: int = 0) -> list[str]:
         record = PLANT_STATUS.Record(
-            State=NodeState.RUNNING, FaultCode=0, Flags=flags, BadFrames=1, Extra=77
+            State=NodeState.RUNNING, FaultCode=0, Flags=flags, BadFrames=1, World=4, Extra=77
         )
         return [name for name, _ in self.view.on_frame(PLANT_STATUS, record, self.now)]
 
@@ -180,6 +180,7 @@ def test_payloads_fit_their_schemas_and_say_what_the_frames_said() -> None:
     status = bus.view.status_payload(bus.now, bridge)
     valid("status", status)
     assert status["controller"]["state"] == "running" and status["plant"]["steps"] == 77
+    assert status["plant"]["world"] == 4
 
 
 def test_a_node_whose_status_stops_counts_as_dead() -> None:

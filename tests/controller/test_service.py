@@ -1,6 +1,7 @@
-"""The controller service and the bridge's operator node tested against each other over
-python-can's in-process ``virtual`` bus (canopen-style), with the joint state sent by the
-test: tasks over ISO-TP, run, stop, reset, describe, and nothing half-applied.
+"""The controller service, the bridge's operator node and the plant tested against each other
+over python-can's in-process ``virtual`` bus (canopen-style), on a clock the test moves: tasks
+over ISO-TP, the plant's world following the task, run, stop, reset, describe, and nothing
+half-applied.
 
 Where a test needs a transfer the operator node would never send (a malformed or cut-off
 task), it speaks ISO-TP itself with its own :class:`IsoTpLink`, as any CAN tool could.
@@ -17,10 +18,11 @@ from typing import Any
 
 import can
 import pytest
-from support import SLOWDOWN, FakeClock, frame
+from support import SLOWDOWN, FakeClock
 
 from bridge.operator import Answer, OperatorNode
 from controller.service import ServiceNode, with_approach
+from plant_sim.node import PlantNode
 from protocol.codec import WIRE
 from protocol.errors import ConfigError
 from protocol.isotp_link import PARAMS, IsoTpLink
@@ -29,12 +31,14 @@ from protocol.messages import (
     CONTROLLER_ANSWER,
     SCENARIO_DOWNLOAD,
     SCENARIO_UPLOAD,
-    STATE,
     Answered,
+    ControllerFault,
     NodeState,
+    PlantFault,
     Reason,
     Request,
 )
+from protocol.node import ClockMode
 from protocol.scenario import Scenario, encode_task, load_scenario, parse_task, task_document
 
 REFERENCE = load_scenario("reference")
@@ -45,41 +49,43 @@ _channels = itertools.count()
 
 @dataclass
 class Rig:
-    """A service, an operator node and the test's own bus: the plant's joint state, and
-    transfers of the test's own (:attr:`tool`)."""
+    """A service, an operator node, a plant (started with the reference scenario, the arm at
+    its first waypoint) and the test's own bus (:attr:`bus`), for transfers of its own
+    (:attr:`tool`)."""
 
     service: ServiceNode
     operator: OperatorNode
-    plant: can.BusABC
+    plant: PlantNode
+    bus: can.BusABC
     clock: FakeClock
     tool: IsoTpLink = field(init=False)
     answers: list[Answer] = field(default_factory=list)
     tool_answers: list[Any] = field(default_factory=list)
-    counter: int = 0
 
     def __post_init__(self) -> None:
-        self.tool = IsoTpLink(self.plant.send, SCENARIO_UPLOAD.frame_id, SCENARIO_DOWNLOAD.frame_id)
+        self.tool = IsoTpLink(self.bus.send, SCENARIO_UPLOAD.frame_id, SCENARIO_DOWNLOAD.frame_id)
 
     def step(self, ticks: int = 1) -> None:
-        """``ticks`` control periods: a joint state, then both nodes' loops and the tool's."""
+        """``ticks`` control periods: the service's tick, the plant's answer and its period,
+        the operator's loop and the tool's."""
         for _ in range(ticks):
-            self.send_state()
             self.clock.now += self.service.period
             self.service.realtime_tick(self.clock.now)
+            self.run_plant()
             self.operator.step(0.0)
-            while (message := self.plant.recv(timeout=0.0)) is not None:
+            while (message := self.bus.recv(timeout=0.0)) is not None:
                 if message.arbitration_id == SCENARIO_DOWNLOAD.frame_id:
                     self.tool.feed(message)
                 elif message.arbitration_id == CONTROLLER_ANSWER.frame_id:
                     self.tool_answers.append(WIRE.decode(message.arbitration_id, message.data)[2])
             self.tool.poll()
 
-    def send_state(self) -> None:
-        position = REFERENCE.initial_joints()
-        for codec, joint_position in zip(STATE, position, strict=True):
-            record = codec.Record(CommandEcho=0, Position=joint_position, Velocity=0.0)
-            self.plant.send(frame(codec.frame_id, codec.encode(record, self.counter)))
-        self.counter = (self.counter + 1) % 16
+    def run_plant(self) -> None:
+        """One pass of the plant's loop at the rig's time."""
+        self.plant.drain()
+        self.plant.take_worlds()
+        self.plant.on_period(self.clock.now)
+        self.plant.send_status_if_due(self.clock.now)
 
     def ask(self, what: Request | Scenario, ticks: int = 50) -> Answer:
         """Send a request (or a task) from the operator node; step until it is answered."""
@@ -109,11 +115,12 @@ class Rig:
 @pytest.fixture
 def rig() -> Iterator[Rig]:
     channel = f"service-{next(_channels)}"
-    buses = [can.Bus(interface="virtual", channel=channel) for _ in range(3)]
+    buses = [can.Bus(interface="virtual", channel=channel) for _ in range(4)]
     clock = FakeClock()
     service = ServiceNode(buses[0], BASE, clock=clock, sleep=lambda seconds: None)
     operator = OperatorNode(buses[1], BASE, lambda *event: None, lambda received: None, clock=clock)
-    yield Rig(service, operator, buses[2], clock)
+    plant = PlantNode(buses[2], REFERENCE, ClockMode.REALTIME, clock=clock)
+    yield Rig(service, operator, plant, buses[3], clock)
     for bus in buses:
         bus.shutdown()
 
@@ -172,7 +179,7 @@ def test_a_transfer_cut_off_midway_changes_nothing_and_the_next_one_goes_through
     cut.send(payload)
     cut.poll()  # the first frame only: then the sender goes silent
     assert len(sent) == 1 and sent[0].data[0] >> 4 == 1  # an ISO-TP first frame
-    rig.plant.send(sent[0])
+    rig.bus.send(sent[0])
     errors = rig.service.transfers.errors
     deadline = time.monotonic() + PARAMS["rx_consecutive_frame_timeout"] / 1000 + SLOWDOWN
     while rig.service.transfers.errors == errors and time.monotonic() < deadline:
@@ -220,8 +227,8 @@ def test_each_run_reports_only_its_own_loop_statistics(rig: Rig) -> None:
 
 def test_a_run_needs_a_fresh_joint_state(rig: Rig) -> None:
     assert rig.ask(TASK).accepted
-    rig.clock.now += 1.0  # the plant went quiet: the last state is old
-    rig.service.realtime_tick(rig.clock.now)
+    rig.service.realtime_tick(rig.clock.now)  # the plant's last answer taken
+    rig.clock.now += 1.0  # then the plant went quiet: the last state is old
     rig.operator.request(Request.RUN, rig.answers.append)
     rig.clock.now += rig.service.period
     rig.service.realtime_tick(rig.clock.now)
@@ -238,6 +245,88 @@ def test_an_estop_latches_until_reset_and_the_task_survives_it(rig: Rig) -> None
     assert rig.ask(Request.RESET) == Answer(True, "none")
     assert rig.service.node_state is NodeState.READY
     assert rig.ask(Request.RUN) == Answer(True, "none")
+
+
+def test_a_reset_clears_the_plants_estop_too(rig: Rig) -> None:
+    """An e-stop latches every node; the operator's reset clears every node (it once reached
+    the controller only, and the plant stayed in e-stop)."""
+    assert rig.ask(TASK).accepted
+    rig.operator.estop()
+    rig.step(2)
+    assert rig.plant.node_state is NodeState.ESTOP
+    assert rig.ask(Request.RESET) == Answer(True, "none")
+    rig.step(2)
+    assert rig.plant.node_state is NodeState.READY
+    assert not rig.plant.fault
+
+
+def test_no_run_while_the_plant_is_in_estop_or_faulted_and_nothing_moves(rig: Rig) -> None:
+    """A run the plant cannot follow is refused with the reason (it was once accepted and
+    reported finished, the arm never having moved)."""
+    assert rig.ask(moved(TASK, -0.05)).accepted
+    rig.plant.emergency_stop()  # the plant alone: an e-stop the controller did not hear
+    rig.step(2)
+    assert rig.ask(Request.RUN) == Answer(False, "plant_not_ready")
+    assert rig.service.node_state is NodeState.READY
+    assert rig.plant.model.velocity == (0.0, 0.0, 0.0)
+    rig.plant.on_reset()
+    rig.plant.enter_fault(PlantFault.JOINT_LIMIT)
+    rig.step(2)
+    assert rig.ask(Request.RUN) == Answer(False, "plant_not_ready")
+    rig.plant.on_reset()
+    rig.step(2)
+    assert rig.ask(Request.RUN) == Answer(True, "none")
+
+
+def test_a_plant_fault_during_a_run_ends_it_in_a_fault(rig: Rig) -> None:
+    assert rig.ask(moved(TASK, -0.05)).accepted
+    assert rig.ask(Request.RUN) == Answer(True, "none")
+    rig.step(10)
+    rig.plant.emergency_stop()
+    rig.step(60)  # the plant's next status, at most 100 ms later
+    assert rig.service.node_state is NodeState.FAULT
+    assert rig.service.fault & ControllerFault.PLANT_FAULT
+
+
+def test_the_plant_judges_collisions_by_the_obstacle_of_the_task_in_force(rig: Rig) -> None:
+    """The task without the obstacle the plant started with, its way straight through where
+    that obstacle stands: the run completes, and the plant saw no collision (it once judged by
+    its start-up scenario's obstacle, faulted, and went back to fault after every reset)."""
+    document = task_document(TASK)
+    del document["obstacle"]
+    through = parse_task(document, BASE)
+    assert rig.ask(through) == Answer(True, "none")
+    assert rig.plant.world.number == rig.service.world.number != 0  # held before the answer
+    assert rig.plant.obstacle is None
+    assert rig.ask(Request.RUN) == Answer(True, "none")
+    rig.step_until(
+        lambda: rig.service.node_state is not NodeState.RUNNING, rig.service.ticks_to_run, "end"
+    )
+    assert rig.service.node_state is NodeState.READY
+    assert rig.service.waypoints_reached == len(through.waypoints)
+    assert rig.plant.stats.collisions == 0 and not rig.plant.fault
+    assert rig.ask(TASK).accepted  # the obstacle back: the plant holds it again
+    assert rig.plant.obstacle == TASK.obstacle.grown(TASK.tool_radius - TASK.obstacle.inflation)
+
+
+def test_a_restarted_plant_gets_the_world_again_and_a_plant_without_it_runs_nothing(
+    rig: Rig,
+) -> None:
+    document = task_document(TASK)
+    document["obstacle"]["x"] = 0.2  # another world than the plant's scenario file
+    task = parse_task(document, BASE)
+    assert rig.ask(task).accepted
+    number = rig.service.world.number
+    assert rig.plant.world.number == number
+    rig.plant = PlantNode(rig.plant.bus, REFERENCE, ClockMode.REALTIME, clock=rig.clock)
+    assert rig.plant.world.number == 0  # restarted: its scenario file's world
+    rig.step(round(0.6 / rig.service.period))  # a status, then the world sent again
+    assert rig.plant.world.number == number
+    assert rig.plant.obstacle == task.obstacle.grown(task.tool_radius - task.obstacle.inflation)
+    rig.plant = PlantNode(rig.plant.bus, REFERENCE, ClockMode.REALTIME, clock=rig.clock)
+    rig.plant.take_worlds = lambda: None  # a plant that never takes the world
+    rig.step(round(0.3 / rig.service.period))  # its status counters taken up (two in a row)
+    assert rig.ask(Request.RUN) == Answer(False, "world_pending")
 
 
 def test_an_unanswered_request_times_out_with_no_answer(rig: Rig) -> None:
