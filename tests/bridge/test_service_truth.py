@@ -5,6 +5,9 @@ controller service and bridge are real processes on CAN over Zenoh through the t
 
 from __future__ import annotations
 
+import json
+import signal
+from pathlib import Path
 from typing import Any
 
 import can
@@ -18,9 +21,9 @@ from robot_stack import (
     inside_obstacle,
     latest,
 )
-from support import wait_until
+from support import Observer, Processes, wait_until
 
-from protocol.messages import NODE_COMMAND, NodeId, Request
+from protocol.messages import CONTROLLER_STATUS, NODE_COMMAND, NodeId, Request
 
 
 def status_of(operator: Any) -> dict[str, Any]:
@@ -111,3 +114,26 @@ def test_a_run_the_plant_cannot_follow_is_refused_and_nothing_moves(
     assert recorder.event("run_started") is None
     after = latest(operator, f"scara/{ROBOT}/joints")
     assert before is not None and after is not None and after["position"] == before["position"]
+
+
+def test_a_service_stopped_before_any_run_exits_cleanly_and_says_it_ran_nothing(
+    router: int, processes: Processes, tmp_path: Path
+) -> None:
+    """Ctrl-C before the first run once ended in an AttributeError (no log to save)."""
+    out = tmp_path / "out"
+    bus = ["--interface", "zenoh", "--channel", "svc", "--bus-option", f"port={router}"]
+    observer = Observer(can.Bus(interface="zenoh", channel="svc", port=router))
+    try:
+        service = processes.start("controller.cli", *bus, "--out", str(out), name="service")
+        status = observer.wait_for(
+            lambda frame: frame.arbitration_id == CONTROLLER_STATUS.frame_id, 30.0
+        )
+        assert status is not None, processes.outputs()  # its loop runs: signals are handled
+    finally:
+        observer.close()
+    service.signal(signal.SIGINT)
+    assert service.wait(10.0) == 0, processes.outputs()
+    assert "Traceback" not in service.log.read_text()
+    result = json.loads((out / "controller.json").read_text())
+    assert result["runs"] == 0 and result["completed"] is False
+    assert not (out / "controller_log.npz").exists()
