@@ -18,7 +18,6 @@ import can
 
 from bridge.view import VIEWED, Event, RobotView
 from protocol.codec import MessageCodec
-from protocol.isotp_link import IsoTpLink
 from protocol.messages import (
     CONTROLLER_ANSWER,
     CONTROLLER_STATUS,
@@ -91,12 +90,7 @@ class OperatorNode(Node):
         self._ticket = 0
         self.frames = 0
         self.transfers = self.add_link(
-            IsoTpLink(
-                lambda message: self._transmit([message]),
-                SCENARIO_UPLOAD.frame_id,
-                SCENARIO_DOWNLOAD.frame_id,
-                on_error=lambda error: self.log.warning("scenario transfer broken: %s", error),
-            )
+            SCENARIO_UPLOAD.frame_id, SCENARIO_DOWNLOAD.frame_id, "scenario"
         )
 
     # --- frames in -----------------------------------------------------------------------

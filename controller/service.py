@@ -38,7 +38,6 @@ import can
 from controller.node import COMMS_TIMEOUT, ControllerNode
 from controller.planner import check_plan
 from protocol.errors import ConfigError
-from protocol.isotp_link import IsoTpLink
 from protocol.kinematics import forward
 from protocol.messages import (
     CONTROLLER_ANSWER,
@@ -104,29 +103,14 @@ class ServiceNode(ControllerNode):
             wall_clock=wall_clock,
         )
         self.transfers = self.add_link(
-            IsoTpLink(
-                self._transmit_one,
-                SCENARIO_DOWNLOAD.frame_id,
-                SCENARIO_UPLOAD.frame_id,
-                on_error=lambda error: self.log.warning("scenario transfer broken: %s", error),
-            )
+            SCENARIO_DOWNLOAD.frame_id, SCENARIO_UPLOAD.frame_id, "scenario"
         )
-        self.worlds = self.add_link(
-            IsoTpLink(
-                self._transmit_one,
-                WORLD_UPLOAD.frame_id,
-                WORLD_FLOW.frame_id,
-                on_error=lambda error: self.log.warning("world transfer broken: %s", error),
-            )
-        )
+        self.worlds = self.add_link(WORLD_UPLOAD.frame_id, WORLD_FLOW.frame_id, "world")
         self.world = None if task is None else World.of(task, next_world(STARTUP_WORLD))
         """The world of the task in force, as the plant must hold it."""
         self._world_sent = -float("inf")
         self._task_answer: tuple[int, float] | None = None
         """A new obstacle's answer waiting for the plant: (ticket, give up at)."""
-
-    def _transmit_one(self, message: can.Message) -> None:
-        self._transmit([message])
 
     # --- life cycle ----------------------------------------------------------------------
 

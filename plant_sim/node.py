@@ -32,7 +32,6 @@ from plant_sim.model import PlantModel
 from protocol.cli import number, quiet_on_closed_pipe
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError
-from protocol.isotp_link import IsoTpLink
 from protocol.kinematics import forward
 from protocol.messages import (
     COMMAND,
@@ -94,14 +93,7 @@ class PlantNode(Node):
         self.obstacle = self.world.touched()
         self.stats = PlantStats()
         self._state_counter = Counter()
-        self.worlds = self.add_link(
-            IsoTpLink(
-                lambda message: self._transmit([message]),
-                WORLD_FLOW.frame_id,
-                WORLD_UPLOAD.frame_id,
-                on_error=lambda error: self.log.warning("world transfer broken: %s", error),
-            )
-        )
+        self.worlds = self.add_link(WORLD_FLOW.frame_id, WORLD_UPLOAD.frame_id, "world")
         self._restart()
 
     def on_reset(self) -> None:

@@ -117,10 +117,17 @@ class Node:
         else:
             self.on_frame(codec, counter, record, message)
 
-    def add_link(self, link: IsoTpLink) -> IsoTpLink:
-        """Hand ``link`` the frames of its receive ID from now on (this node's reader is the
-        bus's only one); ``link``."""
-        self._links[link.rxid] = link
+    def add_link(self, txid: int, rxid: int, what: str) -> IsoTpLink:
+        """An ISO-TP link on this node's bus, sending on ``txid``; the frames of ``rxid`` go to
+        it from now on (this node's reader is the bus's only one). A broken transfer is
+        logged as ``what``'s."""
+        link = IsoTpLink(
+            lambda message: self._transmit([message]),
+            txid,
+            rxid,
+            on_error=lambda error: self.log.warning("%s transfer broken: %s", what, error),
+        )
+        self._links[rxid] = link
         return link
 
     def on_frame(
