@@ -14,6 +14,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,6 +74,23 @@ def ask(session: zenoh.Session, selector: str, body: Any, timeout: float = 5.0) 
     """Every reply to a query (a command), waited for ``timeout`` s (times SLOWDOWN)."""
     payload = None if body is None else json.dumps(body)
     return list(session.get(selector, payload=payload, timeout=timeout * SLOWDOWN))
+
+
+class Samples:
+    """Counts the samples a subscriber receives, per key."""
+
+    def __init__(self, session: zenoh.Session, selector: str) -> None:
+        self.keys: list[str] = []
+        self._lock = threading.Lock()
+        self.subscriber = session.declare_subscriber(selector, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.keys.append(str(sample.key_expr))
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self.keys)
 
 
 @pytest.fixture
@@ -171,6 +189,34 @@ def test_serve_secure_lets_an_operator_command_refuses_a_monitor_and_stops_on_ct
         5.0,
         "both of the launcher's routers to go",
     )
+
+
+def test_the_access_control_lets_no_wildcard_reach_the_commands_nor_the_keys(
+    served: Served,
+) -> None:
+    """What docs/bridge.md says the rules grant, against the real secure router."""
+    operator, alone = served.session("operator"), served.session("monitor")
+    try:
+        # A query reaches every queryable it matches: a wildcard over the commands would be
+        # estop, run, reset and stop at once. The operator names one command per query.
+        for selector in (f"scara/{ROBOT}/cmd/**", f"scara/{ROBOT}/cmd/*", f"scara/{ROBOT}/**"):
+            assert ask(operator, selector, None, timeout=2.0) == [], selector
+        status = latest(operator, "status")
+        assert status is not None and status["controller"]["state"] == "ready", status
+        assert status["plant"]["state"] != "estop", status
+
+        # The router refuses a wildcard subscription: alone in its session it gets nothing.
+        # Beside an allowed one it gets that one's samples: a session hands each sample it
+        # receives to every subscriber of its own that matches.
+        wide_alone = Samples(alone, f"scara/{ROBOT}/**")
+        exact = Samples(operator, f"scara/{ROBOT}/joints")
+        wide_beside = Samples(operator, f"scara/{ROBOT}/**")
+        wait_until(lambda: min(exact.count(), wide_beside.count()) >= 20, 10.0, "joint samples")
+        assert wide_alone.count() == 0
+        assert set(wide_beside.keys) == {f"scara/{ROBOT}/joints"}
+    finally:
+        operator.close()  # type: ignore[no-untyped-call]
+        alone.close()  # type: ignore[no-untyped-call]
 
 
 @pytest.mark.parametrize(
