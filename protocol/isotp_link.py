@@ -6,8 +6,21 @@ receive ID to :meth:`IsoTpLink.feed` and calls :meth:`IsoTpLink.poll` from its l
 ``can-isotp``'s state machine (segmentation, flow control, timeouts) without a thread of its
 own. The IDs are the DBC's ``ScenarioUpload`` (operator to controller) and
 ``ScenarioDownload`` (controller to operator); each end sends on one and receives on the other,
-so one pair carries transfers both ways. A listener (``listen=True``) receives transfers
-between two others without sending flow control: the plant learns the obstacle that way.
+so one pair carries transfers both ways.
+
+One controller and any number of operators (bridges) share the pair, so an operator's link
+sees traffic that is not its own, and ISO-TP is one sender to one receiver:
+
+- a flow control on the receive ID while this end sends nothing is another operator's (the
+  controller answering its upload): dropped and counted, not an error;
+- a transfer on the receive ID reaches every operator, and only the one that asked for it may
+  answer it with flow control: two receivers answering one sender is two flow controls for one
+  transfer. An operator's link (``asked`` given) answers a transfer only while ``asked()``
+  holds; the others it receives as a listener, silently. The controller's link (``asked``
+  None) is the one receiver of its receive ID and answers every transfer.
+
+A listener (``listen=True``) receives the transfers between two others without sending
+anything.
 """
 
 from __future__ import annotations
@@ -28,10 +41,13 @@ PARAMS = {
     "rx_consecutive_frame_timeout": 1000,
     "max_frame_size": MAX_PAYLOAD,
 }
+SINGLE, FIRST, CONSECUTIVE, FLOW_CONTROL = range(4)
+"""The frame types, the high nibble of the first byte (normal addressing)."""
 
 
 class IsoTpLink:
-    """One end of an ISO-TP pair of IDs, driven by the owning node's loop."""
+    """One end of an ISO-TP pair of IDs, driven by the owning node's loop (see the module
+    docstring for ``asked`` and ``listen``)."""
 
     def __init__(
         self,
@@ -40,20 +56,41 @@ class IsoTpLink:
         rxid: int,
         *,
         listen: bool = False,
+        asked: Callable[[], bool] | None = None,
         on_error: Callable[[Exception], None] | None = None,
     ) -> None:
         self._inbox: deque[isotp.CanMessage] = deque(maxlen=1024)
         self._send_frame = send_frame
         self.rxid = rxid
+        self._asked = asked
         self.errors = 0
+        """Broken or timed-out transfers of this end's (sent, or answered)."""
+        self.stray_flow_controls = 0
+        """Flow controls dropped: they came while this end was sending nothing."""
+        self.overheard_errors = 0
+        """Broken transfers this end only listened to (another operator's)."""
         self._on_error = on_error
+        address = isotp.Address(isotp.AddressingMode.Normal_11bits, txid=txid, rxid=rxid)
+        self._own: deque[isotp.CanMessage] = deque()
         self._stack = isotp.TransportLayerLogic(
-            rxfn=self._rx,
+            rxfn=lambda timeout: _next(self._own),
             txfn=self._tx,
-            address=isotp.Address(isotp.AddressingMode.Normal_11bits, txid=txid, rxid=rxid),
+            address=address,
             error_handler=self._error,
             params=PARAMS | {"listen_mode": listen},
         )
+        self._overheard: deque[isotp.CanMessage] = deque()
+        self._listener: isotp.TransportLayerLogic | None = None
+        if asked is not None:
+            self._listener = isotp.TransportLayerLogic(
+                rxfn=lambda timeout: _next(self._overheard),
+                txfn=self._tx,
+                address=address,
+                error_handler=self._overheard_error,
+                params=PARAMS | {"listen_mode": True},
+            )
+        self._receiver = self._stack
+        """The state machine receiving the transfer under way (the last first frame's)."""
 
     def feed(self, message: can.Message) -> None:
         """A frame of the receive ID (flow control for our sends, or data for us)."""
@@ -71,22 +108,43 @@ class IsoTpLink:
         self._stack.send(payload)
 
     def poll(self) -> list[bytes]:
-        """Run the state machine over what was fed; the transfers completed since."""
-        self._stack.process(rx_timeout=0.0)
+        """Run the state machines over what was fed, frame by frame (where a frame goes
+        depends on the state the previous ones left); the transfers completed since."""
+        while self._inbox:
+            message = self._inbox.popleft()
+            stack = self._route(message)
+            if stack is None:
+                continue
+            (self._own if stack is self._stack else self._overheard).append(message)
+            stack.process(rx_timeout=0.0)
         received = []
-        while self._stack.available():
-            payload = self._stack.recv()
-            if payload is not None:
-                received.append(bytes(payload))
+        for stack in (self._stack, self._listener):
+            if stack is None:
+                continue
+            stack.process(rx_timeout=0.0)  # timers, and our own frames to send
+            while stack.available():
+                payload = stack.recv()
+                if payload is not None:
+                    received.append(bytes(payload))
         return received
+
+    def _route(self, message: isotp.CanMessage) -> isotp.TransportLayerLogic | None:
+        """The state machine ``message`` is for; None to drop it."""
+        kind = message.data[0] >> 4 if message.data else None
+        if kind == FLOW_CONTROL:
+            if self._stack.tx_state == self._stack.TxState.IDLE:
+                self.stray_flow_controls += 1
+                return None
+            return self._stack
+        if kind in (SINGLE, FIRST) and self._listener is not None:
+            asked = self._asked is not None and self._asked()
+            self._receiver = self._stack if asked else self._listener
+        return self._receiver  # the transfer the last first frame began
 
     @property
     def sending(self) -> bool:
         """A transfer of ours is still under way."""
         return bool(self._stack.transmitting())
-
-    def _rx(self, timeout: float) -> isotp.CanMessage | None:
-        return self._inbox.popleft() if self._inbox else None
 
     def _tx(self, message: isotp.CanMessage) -> None:
         self._send_frame(
@@ -102,3 +160,11 @@ class IsoTpLink:
         self.errors += 1
         if self._on_error is not None:
             self._on_error(error)
+
+    def _overheard_error(self, error: Exception) -> None:
+        """Another end's transfer broke: nothing of ours was lost."""
+        self.overheard_errors += 1
+
+
+def _next(frames: deque[isotp.CanMessage]) -> isotp.CanMessage | None:
+    return frames.popleft() if frames else None

@@ -3,7 +3,9 @@ transport, run a scenario, stop both cleanly (Ctrl-C too) and print the report.
 
 With ``--serve`` it runs nothing itself: the controller is a service holding the scenario as
 its task, and ``scara-bridge`` publishes the robot on Zenoh and takes the commands, until
-Ctrl-C.
+Ctrl-C. ``--secure`` puts the robot's keys on a second router of their own, with Zenoh's
+authentication and access control (``config/zenoh/``), the bridge logged in as ``bridge``:
+what ``docs/bridge.md`` otherwise has a user assemble by hand.
 
 On the CAN-over-Zenoh transport it first makes sure a router runs on the transport's port:
 if none answers it starts ``scara-router`` and stops it at the end, so the router outlives
@@ -13,16 +15,20 @@ either node (one may be restarted mid-run, and other tools may join) but not the
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import IO
 
+import zenoh
 from tqdm import tqdm
 
 from controller.planner import load_planned
@@ -38,7 +44,14 @@ from protocol.cli import (
 from protocol.errors import ScaraError
 from protocol.node import ClockMode, add_timing_arguments
 from protocol.scenario import Mode
-from protocol.zenoh_can.config import DEFAULT_HOST, DEFAULT_PORT, router_reachable
+from protocol.zenoh_can.config import (
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    build_zenoh_config,
+    client_config,
+    close,
+    router_reachable,
+)
 from sim.report import LOG_FILE, RECORDING, format_report, read_run
 
 STOP_GRACE = 5.0
@@ -47,6 +60,17 @@ REALTIME_SLACK = 10.0
 """s a real-time run may take beyond twice the scenario's duration (start-up, holds)."""
 ROUTER_START = 10.0
 """s the router gets to answer after it was started."""
+SECURE_CONFIG = Path(__file__).resolve().parent.parent / "config" / "zenoh" / "secure-router.json5"
+"""The access control of the robot's keys: who may read, who may command."""
+CREDENTIALS = SECURE_CONFIG.parent / "credentials.txt"
+"""The demo users, a ``user:password`` a line (change the passwords)."""
+SECURE_PORT = 17448
+BRIDGE_USER = "bridge"
+"""The user the bridge logs in as: the one ``SECURE_CONFIG`` lets publish and answer."""
+ROLES = {"operator": "reads the state and sends commands", "monitor": "reads the state only"}
+"""The users ``SECURE_CONFIG`` lets a monitor log in as, and what each may do there."""
+PASSWORD_VARIABLE = "SCARA_ZENOH_PASSWORD"
+"""Where the bridge takes its password from (bridge/session.py): never on a command line."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,6 +115,28 @@ def build_parser() -> argparse.ArgumentParser:
         help="start the controller as a service and scara-bridge (keys on the CAN router), "
         "then wait for commands on Zenoh until Ctrl-C",
     )
+    secure = parser.add_argument_group("access control (with --serve)")
+    secure.add_argument(
+        "--secure",
+        action="store_true",
+        help="put the robot's keys on a second router with authentication and access control "
+        "(config/zenoh/secure-router.json5), the bridge logged in as user bridge; monitors "
+        "log in as operator (may command) or monitor (read-only)",
+    )
+    secure.add_argument(
+        "--credentials",
+        type=Path,
+        metavar="FILE",
+        help="the users of the secure router, user:password a line, bridge among them "
+        "(default: config/zenoh/credentials.txt, the demo users: change their passwords)",
+    )
+    secure.add_argument(
+        "--secure-port",
+        type=number(1, 65535, integer=True),
+        metavar="PORT",
+        help=f"port of the secure router (default {SECURE_PORT}; its address is the bus's "
+        "host option, 127.0.0.1 unless given)",
+    )
     add_comms_timeout_argument(parser, None, "default: the controller's, see controller --help")
     add_timing_arguments(parser)
     add_bus_arguments(parser)
@@ -134,13 +180,29 @@ def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str],
     return plant, controller
 
 
+def can_router(args: argparse.Namespace) -> tuple[str, int]:
+    """The host and port of the CAN router the bus options name."""
+    options = parse_options(args.bus_option)
+    return str(options.get("host", DEFAULT_HOST)), int(options.get("port", DEFAULT_PORT))
+
+
+def keys_router(args: argparse.Namespace) -> tuple[str, int]:
+    """The host and port of the router where the robot's keys live: the secure one (at the
+    bus's host), or the CAN router."""
+    host, port = can_router(args)
+    return (host, int(args.secure_port or SECURE_PORT)) if args.secure else (host, port)
+
+
 def bridge_command(args: argparse.Namespace) -> list[str]:
-    """``scara-bridge`` on the same transport, its keys on the CAN router."""
+    """``scara-bridge`` on the same transport, its keys on the CAN router, or on the secure
+    one as :data:`BRIDGE_USER` (its password goes in the environment, see :func:`main`)."""
     interface, channel = resolve_transport(args.interface, args.channel)
     options = parse_options(args.bus_option)
+    host, port = keys_router(args)
     command = [sys.executable, "-m", "bridge.node", args.scenario, "--interface", interface]
-    command += ["--channel", channel, "--zenoh-host", str(options.get("host", DEFAULT_HOST))]
-    command += ["--zenoh-port", str(options.get("port", DEFAULT_PORT))]
+    command += ["--channel", channel, "--zenoh-host", host, "--zenoh-port", str(port)]
+    if args.secure:
+        command += ["--user", BRIDGE_USER]
     for option in args.bus_option:
         command += ["--bus-option", option]
     if options.get("allow_remote"):
@@ -148,14 +210,85 @@ def bridge_command(args: argparse.Namespace) -> list[str]:
     return command + ["-v"] * args.verbose
 
 
-def serve(processes: list[subprocess.Popen[bytes]]) -> int:
-    """Wait until Ctrl-C (0) or until one of ``processes`` ends by itself (1)."""
-    print(
-        "scara-run: serving; command it with scara-monitor (same --zenoh-port as the bus), "
-        "Ctrl-C to stop",
-        file=sys.stderr,
-        flush=True,
+def read_credentials(path: Path) -> dict[str, str]:
+    """The users of a Zenoh ``usrpwd`` dictionary file; ScaraError, before anything starts, if
+    it cannot be read or has no :data:`BRIDGE_USER` (the bridge could not log in)."""
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise ScaraError(f"--credentials {path}: {error.strerror or error}") from None
+    users: dict[str, str] = {}
+    for line_number, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        user, colon, password = line.partition(":")
+        if not colon or not user or not password:
+            raise ScaraError(f"--credentials {path}, line {line_number}: not user:password")
+        users[user] = password
+    if BRIDGE_USER not in users:
+        raise ScaraError(
+            f"--credentials {path} has no {BRIDGE_USER} user: the bridge logs in as "
+            f"{BRIDGE_USER} (add a line {BRIDGE_USER}:PASSWORD)"
+        )
+    return users
+
+
+def secure_router_command(args: argparse.Namespace, folder: Path) -> list[str]:
+    """``scara-router`` on the secure port with :data:`SECURE_CONFIG`, its users taken from
+    ``--credentials``: the access control stays the project's, the passwords are the user's.
+    The configuration is written into ``folder``, which the router reads as it starts."""
+    config = zenoh.Config.from_file(str(SECURE_CONFIG))
+    credentials = (args.credentials or CREDENTIALS).resolve()
+    config.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(credentials)))
+    path = folder / SECURE_CONFIG.name
+    path.write_text(str(config))
+    host, port = keys_router(args)
+    command = [sys.executable, "-m", "protocol.zenoh_can.router", "--host", host]
+    command += ["--port", str(port), "--config", str(path)]
+    if parse_options(args.bus_option).get("allow_remote"):
+        command.append("--allow-remote")
+    return command + ["-v"] * args.verbose
+
+
+def logs_in(host: str, port: int, user: str, password: str) -> bool:
+    """True if a router at ``host:port`` answers and lets ``user`` in (a secure router
+    refuses a session without credentials, so :func:`router_reachable` cannot tell)."""
+    try:
+        session = zenoh.open(build_zenoh_config(client_config(host, port, user, password)))
+    except zenoh.ZError:
+        return False
+    try:
+        return bool(session.info.routers_zid())
+    finally:
+        close(session)
+
+
+def serving_hint(args: argparse.Namespace, users: dict[str, str]) -> str:
+    """How to reach the robot being served: the monitor's command line, per user."""
+    host, port = keys_router(args)
+    where = (
+        f"--zenoh-port {port}"
+        if host == DEFAULT_HOST
+        else f"--zenoh-host {host} --zenoh-port {port}"
     )
+    if not args.secure:
+        return f"scara-run: serving; watch and command it with: scara-monitor {where}"
+    lines = [
+        f"scara-run: serving behind access control on {host}:{port}, the users of "
+        f"{args.credentials or CREDENTIALS}; connect with:"
+    ]
+    lines += [
+        f"  scara-monitor {where} --user {user:<8}  ({what})"
+        for user, what in ROLES.items()
+        if user in users
+    ]
+    lines.append(f"  the user's password in --password-file FILE or in {PASSWORD_VARIABLE}")
+    return "\n".join(lines)
+
+
+def serve(processes: list[subprocess.Popen[bytes]], hint: str) -> int:
+    """Print ``hint``; wait until Ctrl-C (0) or until one of ``processes`` ends by itself (1)."""
+    print(f"{hint}\nscara-run: Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
         while all(process.poll() is None for process in processes):
             time.sleep(0.2)
@@ -205,23 +338,21 @@ def router_command(args: argparse.Namespace) -> list[str] | None:
     interface, _ = resolve_transport(args.interface, args.channel)
     if interface != "zenoh":
         return None
-    options = parse_options(args.bus_option)
-    host, port = str(options.get("host", DEFAULT_HOST)), int(options.get("port", DEFAULT_PORT))
+    host, port = can_router(args)
     if router_reachable(host, port):
         return None
     command = [sys.executable, "-m", "protocol.zenoh_can.router", "--host", host]
     command += ["--port", str(port)]
-    if options.get("allow_remote"):
+    if parse_options(args.bus_option).get("allow_remote"):
         command.append("--allow-remote")
     return command
 
 
-def wait_for_router(args: argparse.Namespace, router: subprocess.Popen[bytes]) -> bool:
-    options = parse_options(args.bus_option)
-    host, port = str(options.get("host", DEFAULT_HOST)), int(options.get("port", DEFAULT_PORT))
+def wait_for_router(router: subprocess.Popen[bytes], answers: Callable[[], bool]) -> bool:
+    """True once ``answers()`` does, within ROUTER_START; False if ``router`` ends first."""
     deadline = time.monotonic() + ROUTER_START
     while time.monotonic() < deadline and router.poll() is None:
-        if router_reachable(host, port):
+        if answers():
             return True
         time.sleep(0.05)
     return False
@@ -243,15 +374,37 @@ def _interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+def check_secure(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, str]:
+    """The users of ``--credentials`` when ``--secure`` (none otherwise); exits 2 on flags that
+    do not go together (ScaraError from :func:`read_credentials`)."""
+    if not args.secure:
+        for flag, value in (
+            ("--credentials", args.credentials),
+            ("--secure-port", args.secure_port),
+        ):
+            if value is not None:
+                parser.error(f"{flag} goes with --secure")
+        return {}
+    if not args.serve:
+        parser.error("--secure goes with --serve: only a served robot has keys to protect")
+    if keys_router(args) == can_router(args):
+        parser.error(f"--secure-port {args.secure_port} is the CAN router's: choose another")
+    if not SECURE_CONFIG.exists():
+        raise ScaraError(f"{SECURE_CONFIG} is missing: --secure needs the repository's config/")
+    return read_credentials(args.credentials or CREDENTIALS)
+
+
 @quiet_on_closed_pipe
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     configure_logging(args.verbose)
     interruptible()
     signal.signal(signal.SIGTERM, _interrupt)  # stop the nodes on SIGTERM as on Ctrl-C
     try:
         scenario = load_planned(args.scenario)
         parse_options(args.bus_option)
+        users = check_secure(parser, args)
     except (ScaraError, argparse.ArgumentTypeError) as error:
         print(f"scara-run: {error}", file=sys.stderr)
         return 2
@@ -266,23 +419,41 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     processes: list[subprocess.Popen[bytes]] = []
     router: subprocess.Popen[bytes] | None = None
+    secure_router: subprocess.Popen[bytes] | None = None
     recorder: subprocess.Popen[bytes] | None = None
     interrupted = False
+    bridge_environment = None
     try:
         command = router_command(args)
         if command is not None:
             router = subprocess.Popen(command)
-            if not wait_for_router(args, router):
+            if not wait_for_router(router, lambda: router_reachable(*can_router(args))):
                 print("scara-run: the Zenoh router did not come up", file=sys.stderr)
                 return 1
+        if args.secure:
+            password = users[BRIDGE_USER]
+            host, port = keys_router(args)
+            with tempfile.TemporaryDirectory(prefix="scara-run-") as folder:  # read at start-up
+                secure_router = subprocess.Popen(secure_router_command(args, Path(folder)))
+                if not wait_for_router(
+                    secure_router, lambda: logs_in(host, port, BRIDGE_USER, password)
+                ):
+                    print(
+                        f"scara-run: the secure router did not let {BRIDGE_USER} in on "
+                        f"{host}:{port} (is the port taken? see its output above)",
+                        file=sys.stderr,
+                    )
+                    return 1
+            bridge_environment = os.environ | {PASSWORD_VARIABLE: password}
         if args.record and not args.serve:
             recorder = start_recorder(args)
             if recorder is None:
                 return 1
         processes += [subprocess.Popen(command) for command in order]
         if args.serve:
-            processes.append(subprocess.Popen(bridge_command(args)))
-            return serve(processes)
+            processes.append(subprocess.Popen(bridge_command(args), env=bridge_environment))
+            watched = processes + ([secure_router] if secure_router is not None else [])
+            return serve(watched, serving_hint(args, users))
         controller = processes[0] if args.controller_first else processes[1]
         started = time.monotonic()
         with tqdm(
@@ -303,8 +474,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         codes = [stop(process) for process in reversed(processes)]
         if recorder is not None and stop(recorder) == 0:
             (args.out / LOG_FILE).unlink(missing_ok=True)  # its copy in the recording is kept
-        if router is not None:
-            stop(router)
+        for a_router in (secure_router, router):
+            if a_router is not None:
+                stop(a_router)
     if interrupted:
         return 130
     if not (args.out / "controller.json").exists():

@@ -89,9 +89,26 @@ def format_report(report: RunReport) -> str:
     ]
     if report.measures is not None:
         lines += ["", format_table({result["mode"]: report.measures})]
-    lines += [
-        "",
-        f"loop: {loop['ticks']} control ticks of {loop['loops']}; lateness p50 "
+    lines += [""] + (_lockstep(loop) if result["clock"] == "lockstep" else _realtime(loop))
+    lines.append(
+        f"wall time {result['wall_time_s']:.2f} s for {loop['ticks']} ticks: "
+        f"{result['realtime_factor']:.1f}x real time"
+    )
+    lines.append(_received("controller received:", result["e2e"]) + " (none acted on)")
+    if report.plant:
+        plant = report.plant
+        lines.append(
+            _received("plant received:", plant["e2e"])
+            + f"; collisions {plant['stats']['collisions']}, state {plant['state']}"
+        )
+    return "\n".join(lines)
+
+
+def _realtime(loop: dict[str, Any]) -> list[str]:
+    """How the loop kept its deadlines: ``loops`` counts every period, ``ticks`` those that
+    commanded the run (none while holding, or idle)."""
+    lines = [
+        f"loop: {loop['ticks']} control ticks in {loop['loops']} periods; lateness p50 "
         f"{loop['lateness_p50_us']:.0f} us, p99 {loop['lateness_p99_us']:.0f} us, max "
         f"{loop['lateness_max_us']:.0f} us; deadline misses {loop['deadline_misses']} "
         f"({100 * loop['deadline_miss_fraction']:.2f} %), overruns {loop['overruns']}",
@@ -104,25 +121,22 @@ def format_report(report: RunReport) -> str:
             f"{100 * loop['answered_within_tick_fraction']:.2f} % (round trip p50 "
             f"{loop['answer_delay_p50_us']:.0f} us, p99 {loop['answer_delay_p99_us']:.0f} us)"
         )
-    else:
-        lines.append(f"lockstep retries: {loop['lockstep_retries']}")
-    lines.append(
-        f"wall time {result['wall_time_s']:.2f} s for {loop['ticks']} ticks: "
-        f"{result['realtime_factor']:.1f}x real time"
-    )
-    lines.append(_received("controller received", result["e2e"]) + " (none acted on)")
-    if report.plant:
-        plant = report.plant
-        lines.append(
-            _received("plant received:    ", plant["e2e"])
-            + f"; collisions {plant['stats']['collisions']}, state {plant['state']}"
-        )
-    return "\n".join(lines)
+    return lines
+
+
+def _lockstep(loop: dict[str, Any]) -> list[str]:
+    """Lockstep has no periods, so no deadlines, lateness or holds: each tick waits for the
+    plant's step (``loops``, the real-time loop's periods, stays 0)."""
+    return [
+        f"loop: {loop['ticks']} control ticks in lockstep, each answered by one plant step "
+        f"(no deadlines); retries (a tick's command and StepSync sent again for want of "
+        f"an answer): {loop['lockstep_retries']}"
+    ]
 
 
 def _received(label: str, e2e: dict[str, int]) -> str:
     return (
-        f"{label}: {e2e['ok']} ok, {e2e['lost']} lost, {e2e['repeated']} repeated, "
+        f"{label:<21}{e2e['ok']} ok, {e2e['lost']} lost, {e2e['repeated']} repeated, "
         f"{e2e['stale']} stale, {e2e['corrupt']} corrupt, {e2e.get('unknown', 0)} unknown ID"
     )
 
