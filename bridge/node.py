@@ -231,8 +231,13 @@ class Bridge:
     # --- commands ----------------------------------------------------------------------------
 
     def _command_query(self, command: str) -> Any:
+        key = command_key(self.robot, command)
+
         def on_query(query: zenoh.Query) -> None:
             """Zenoh thread: check the command, then leave it to the CAN side."""
+            if str(query.key_expr) != key:  # a wildcard reaches every command: none was meant
+                _refuse_malformed(query, "key", f"name one command, such as {key}")
+                return
             payload = query.payload.to_bytes() if query.payload is not None else b""
             try:
                 body = parse_payload(command, payload)
@@ -243,9 +248,7 @@ class Bridge:
                         raise RefusedError("busy", message="the controller is running a task")
                     work = edit_task(command, body, self.node.task, self.base)
             except MalformedCommandError as error:
-                error_reply = {"error": "malformed", "field": error.field, "message": error.message}
-                query.reply_err(json.dumps(error_reply).encode())
-                _drop(query)
+                _refuse_malformed(query, error.field, error.message)
                 return
             except RefusedError as refusal:
                 query.reply(query.key_expr, json.dumps(refusal.reply()).encode())
@@ -324,6 +327,13 @@ class Bridge:
         entities: list[Any] = [*self._queryables, *self._publishers.values()]
         for entity in entities:
             entity.undeclare()
+
+
+def _refuse_malformed(query: zenoh.Query, field: str, message: str) -> None:
+    """The error reply (``error.schema.json``): nothing was done."""
+    error = {"error": "malformed", "field": field, "message": message}
+    query.reply_err(json.dumps(error).encode())
+    _drop(query)
 
 
 def _drop(query: Any) -> None:

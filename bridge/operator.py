@@ -90,7 +90,11 @@ class OperatorNode(Node):
         self._ticket = 0
         self.frames = 0
         self.transfers = self.add_link(
-            SCENARIO_UPLOAD.frame_id, SCENARIO_DOWNLOAD.frame_id, "scenario"
+            SCENARIO_UPLOAD.frame_id,
+            SCENARIO_DOWNLOAD.frame_id,
+            "scenario",
+            # only the operator whose describe was answered answers the task's transfer
+            asked=lambda: any(pending.answered for pending in self._pending.values()),
         )
 
     # --- frames in -----------------------------------------------------------------------

@@ -117,14 +117,17 @@ class Node:
         else:
             self.on_frame(codec, counter, record, message)
 
-    def add_link(self, txid: int, rxid: int, what: str) -> IsoTpLink:
+    def add_link(
+        self, txid: int, rxid: int, what: str, asked: Callable[[], bool] | None = None
+    ) -> IsoTpLink:
         """An ISO-TP link on this node's bus, sending on ``txid``; the frames of ``rxid`` go to
         it from now on (this node's reader is the bus's only one). A broken transfer is
-        logged as ``what``'s."""
+        logged as ``what``'s; ``asked`` as :class:`IsoTpLink` takes it (an operator's)."""
         link = IsoTpLink(
             lambda message: self._transmit([message]),
             txid,
             rxid,
+            asked=asked,
             on_error=lambda error: self.log.warning("%s transfer broken: %s", what, error),
         )
         self._links[rxid] = link

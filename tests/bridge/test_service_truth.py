@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import signal
+import time
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ from robot_stack import (
     inside_obstacle,
     latest,
 )
-from support import Observer, Processes, wait_until
+from support import SLOWDOWN, Observer, Processes, wait_until
 
 from protocol.messages import CONTROLLER_STATUS, NODE_COMMAND, NodeId, Request
 
@@ -137,3 +138,16 @@ def test_a_service_stopped_before_any_run_exits_cleanly_and_says_it_ran_nothing(
     result = json.loads((out / "controller.json").read_text())
     assert result["runs"] == 0 and result["completed"] is False
     assert not (out / "controller_log.npz").exists()
+
+
+def test_a_wildcard_query_on_the_commands_runs_none_of_them(stack: Stack, client: Any) -> None:
+    """One query on ``cmd/**`` once reached every command: estop, run, reset and stop ran."""
+    operator = client(stack.zenoh_port)
+    stack.wait_ready(operator)
+    assert command(operator, "waypoints", {"waypoints": REFERENCE["waypoints"]})[1]["accepted"]
+    replies = list(operator.get(f"scara/{ROBOT}/cmd/**", timeout=5.0 * SLOWDOWN))
+    assert len(replies) == 7 and all(reply.err is not None for reply in replies)
+    assert {json.loads(reply.err.payload.to_bytes())["field"] for reply in replies} == {"key"}
+    time.sleep(0.3 * SLOWDOWN)  # an e-stop or a run would show in the next status
+    status = status_of(operator)
+    assert (status["controller"]["state"], status["plant"]["state"]) == ("ready", "ready")
