@@ -298,7 +298,8 @@ def build_recover_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scara-record recover",
         description="Rewrite an MCAP file cut short (its writer killed) as a valid, indexed "
-        "MCAP with every complete chunk, and report what was lost.",
+        "MCAP with every complete chunk, and report what it kept and what it could not: the "
+        "cut bytes, and the frames the recorder had counted that are not in the file.",
     )
     parser.add_argument("file", type=Path, help="the damaged recording")
     parser.add_argument(
