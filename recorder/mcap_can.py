@@ -175,6 +175,13 @@ def counts_channel(writer: Writer) -> int:
     return writer.register_channel(COUNTS_TOPIC, "json", schema_id)
 
 
+def end_chunk(writer: Writer, counts_id: int, counts: RecorderCounts, stamp: int) -> None:
+    """``counts`` (on channel ``counts_id``) as the chunk's last message, logged at ``stamp``
+    ns, then the chunk to the OS: what ``scara-record`` does every :data:`FLUSH_PERIOD`."""
+    writer.add_message(counts_id, stamp, counts.encode(), stamp)
+    flush(writer)
+
+
 class FrameChannels:
     """The CAN channels of one MCAP writer, registered as their first frame comes."""
 

@@ -57,6 +57,7 @@ from recorder.mcap_can import (
     RecorderCounts,
     RecordingError,
     counts_channel,
+    end_chunk,
     finish,
     flush,
     open_writer,
@@ -215,11 +216,10 @@ class Recorder:
                 flush_at = None
 
     def _flush(self) -> None:
-        """The counts so far as the chunk's last message, then the chunk to the OS."""
-        now = time.time_ns()
-        counts = RecorderCounts(self.received, self.dropped)
-        self._writer.add_message(self._counts, now, counts.encode(), now)
-        flush(self._writer)
+        """End the chunk with the counts so far, and hand it to the OS."""
+        end_chunk(
+            self._writer, self._counts, RecorderCounts(self.received, self.dropped), time.time_ns()
+        )
 
     def stop(self) -> None:
         """End :meth:`run` (from a signal handler)."""

@@ -12,6 +12,7 @@ recorder received after its last flush never reached the file: that, the file ca
 
 from __future__ import annotations
 
+import contextlib
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,7 +89,6 @@ class RecoveryReport:
     channels: int
     attachments: int
     metadata: int
-    size: int
     cut: Cut | None
     """None: the file ended on a complete record."""
     was_complete: bool
@@ -213,8 +213,9 @@ def recover(source: Path, out: Path) -> RecoveryReport:
                     else:
                         other_messages += 1
                     if record.channel_id in counts_channels:
-                        counts = RecorderCounts.decode(record.data)
-                        counts_log_time = record.log_time
+                        with contextlib.suppress(RecordingError):  # copied all the same
+                            counts = RecorderCounts.decode(record.data)
+                            counts_log_time = record.log_time
                     if first_log_time is None:
                         first_log_time = record.log_time
                     first_log_time = min(first_log_time, record.log_time)
@@ -252,7 +253,6 @@ def recover(source: Path, out: Path) -> RecoveryReport:
         len(channels),
         attachments,
         metadata,
-        size,
         cut,
         complete,
         None if first_log_time is None else (first_log_time, last_log_time),

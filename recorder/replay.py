@@ -224,7 +224,7 @@ class ZenohStateSink:
         )
         for _ in replies:  # ends with the router's final reply, or at the timeout
             pass
-        return Delivery(time.monotonic() - began < timeout, "the router")
+        return Delivery(time.monotonic() - began < timeout, "the router", timeout)
 
 
 @dataclass(frozen=True, slots=True)
@@ -233,13 +233,15 @@ class Delivery:
 
     confirmed: bool
     by: str
+    within: float
+    """s it waited at most."""
 
     def summary(self) -> str:
         if self.confirmed:
             return f"taken by {self.by}"
         return (
-            f"NOT confirmed taken by {self.by} within {DELIVERY_TIMEOUT:g} s: what was still "
-            "in flight (a stalled receiver) is lost"
+            f"NOT confirmed taken by {self.by} within {self.within:g} s: what was still in "
+            "flight (a stalled receiver) is lost"
         )
 
 
@@ -254,7 +256,8 @@ def deliver_frames(bus: can.BusABC, timeout: float) -> Delivery | None:
     began = time.monotonic()
     answered = flush(timeout)
     confirmed = time.monotonic() - began < timeout
-    return Delivery(confirmed, f"the {answered} bus{'es' if answered != 1 else ''} listening")
+    listening = f"the {answered} bus{'es' if answered != 1 else ''} listening"
+    return Delivery(confirmed, listening, timeout)
 
 
 def replay(

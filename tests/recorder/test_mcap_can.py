@@ -20,8 +20,8 @@ from recorder.mcap_can import (
     RecordingError,
     check_mcap,
     counts_channel,
+    end_chunk,
     finish,
-    flush,
     frames,
     open_writer,
 )
@@ -193,8 +193,7 @@ def test_recovery_counts_what_the_recorder_received_and_the_file_lacks(tmp_path:
         channels, counts = FrameChannels(writer), counts_channel(writer)
         for message in FRAMES:
             channels.write(message)
-        writer.add_message(counts, 7, RecorderCounts(received=10, dropped=3).encode(), 7)
-        flush(writer)  # killed here: no summary
+        end_chunk(writer, counts, RecorderCounts(received=10, dropped=3), 7)  # then killed
     report = recover(path, tmp_path / "fixed.mcap")
     assert report.cut is None and report.frames_not_kept == 5
     assert report.counts == RecorderCounts(10, 3) and report.counts_log_time == 7

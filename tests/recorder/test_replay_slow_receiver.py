@@ -22,6 +22,7 @@ from support import ROOT, SLOWDOWN, wait_until
 
 from protocol.keys import DEFAULT_ROBOT, state_key
 from recorder.mcap_can import finish, open_writer
+from recorder.replay import deliver_frames
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -143,3 +144,19 @@ def test_a_replay_onto_the_zenoh_keys_reaches_a_slow_subscriber_whole(
     with receiver("zenoh", "--port", str(router), "--key", key, "--per-frame", "2e-5") as got:
         done = replay_through_a_stall(got, str(file), "--to", "zenoh", "--zenoh-port", str(router))
         all_arrived(done, got, SAMPLES, "the router")
+
+
+class StalledBus:
+    """A bus whose receivers never confirm: its flush barrier runs out its timeout."""
+
+    def flush(self, timeout: float) -> int:
+        time.sleep(timeout)
+        return 0
+
+
+def test_a_replay_that_cannot_confirm_delivery_says_so() -> None:
+    delivery = deliver_frames(StalledBus(), 0.05)  # type: ignore[arg-type]
+    assert delivery is not None and not delivery.confirmed
+    assert delivery.summary().startswith("NOT confirmed taken by the 0 buses listening within")
+    with can.Bus(interface="virtual", channel="confirm") as bus:  # no barrier: sent is sent
+        assert deliver_frames(bus, 1.0) is None
