@@ -16,6 +16,7 @@ indexed, so a file cut short is readable up to its last complete chunk.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +34,12 @@ from protocol.errors import ScaraError
 FRAME_ENCODING = "can-frame"
 TOPIC_PREFIX = "can/"
 CHUNK_SIZE = 256 * 1024
-"""bytes per chunk: what a recorder killed mid-run can lose at most (about 2 s at 1 kHz)."""
+"""bytes per chunk at most, before compression (``scara-record`` ends its chunks sooner, by
+time: :data:`FLUSH_PERIOD`)."""
+FLUSH_PERIOD = 0.1
+"""s: the most of its last frames a ``scara-record`` killed (kill -9) loses. Its writer ends
+the chunk and hands it to the OS once the chunk's first message is this old: mcap's Writer
+ends chunks only by size, and a chunk still in memory dies with the process."""
 PROFILE = "scara"
 DBC_NAMES = {message.frame_id: name for name, message in WIRE.messages.items()} | {
     message.frame_id: name for name, message in WIRE.isotp.items()
@@ -119,6 +125,61 @@ def open_writer(stream: IO[bytes]) -> Writer:
 def finish(writer: Writer) -> None:
     """Write the summary and the index: ``Writer.finish`` (unannotated in mcap)."""
     writer.finish()  # type: ignore[no-untyped-call]
+
+
+def flush(writer: Writer) -> None:
+    """End the chunk in progress and hand every byte written so far to the OS (which keeps
+    them if the process is killed): ``Writer.flush`` (unannotated in mcap)."""
+    writer.flush()  # type: ignore[no-untyped-call]
+
+
+COUNTS_TOPIC = "recorder/counts"
+"""The channel of the recorder's own counts, one message at the end of each chunk: what a
+file cut short still says of the frames its recorder received."""
+COUNTS_SCHEMA = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "the frames scara-record had received and dropped (full queue) so far",
+    "type": "object",
+    "properties": {
+        "received": {"type": "integer", "minimum": 0},
+        "dropped": {"type": "integer", "minimum": 0},
+    },
+    "required": ["received", "dropped"],
+}
+
+
+@dataclass(frozen=True, slots=True)
+class RecorderCounts:
+    """Frames a recorder had received so far, and how many of them it dropped."""
+
+    received: int
+    dropped: int
+
+    def encode(self) -> bytes:
+        return json.dumps({"received": self.received, "dropped": self.dropped}).encode()
+
+    @classmethod
+    def decode(cls, data: bytes) -> RecorderCounts:
+        try:
+            fields = json.loads(data)
+            return cls(int(fields["received"]), int(fields["dropped"]))
+        except (ValueError, KeyError, TypeError) as error:
+            raise RecordingError(f"a {COUNTS_TOPIC} message is malformed: {error}") from None
+
+
+def counts_channel(writer: Writer) -> int:
+    """Register the :data:`COUNTS_TOPIC` channel (and its schema) on ``writer``."""
+    schema_id = writer.register_schema(
+        COUNTS_TOPIC, "jsonschema", json.dumps(COUNTS_SCHEMA).encode()
+    )
+    return writer.register_channel(COUNTS_TOPIC, "json", schema_id)
+
+
+def end_chunk(writer: Writer, counts_id: int, counts: RecorderCounts, stamp: int) -> None:
+    """``counts`` (on channel ``counts_id``) as the chunk's last message, logged at ``stamp``
+    ns, then the chunk to the OS: what ``scara-record`` does every :data:`FLUSH_PERIOD`."""
+    writer.add_message(counts_id, stamp, counts.encode(), stamp)
+    flush(writer)
 
 
 class FrameChannels:

@@ -3,7 +3,9 @@ MCAP file per run; ``scara-record recover`` rewrites a file cut short.
 
 One more participant on the bus that only listens. The bus reader never waits for the disk:
 frames go through a bounded queue (:data:`QUEUE_FRAMES`) to a writer thread, and a full queue
-drops the frame and counts it. The file holds:
+drops the frame and counts it. The writer ends a chunk and hands it to the OS at most
+:data:`~recorder.mcap_can.FLUSH_PERIOD` after the chunk's first message, so that a recorder
+killed at any moment loses no more than that of its last frames. The file holds:
 
 - the raw frames (``recorder/mcap_can.py``: one channel per DBC message, log time = the bus
   timestamp in ns, the raw data bytes as the message), corrupt ones included;
@@ -11,6 +13,8 @@ drops the frame and counts it. The file holds:
   (``scara/joints``, ``scara/tcp``, ``scara/coordination``, ``scara/status``,
   ``scara/events``): JSON with the same JSON Schemas as the bridge's keys; in ``status`` the
   ``bridge`` part holds the recorder's own counts;
+- the recorder's counts (``recorder/counts``: frames received and dropped so far) at the end
+  of each chunk, which ``scara-record recover`` reads back from a file cut short;
 - metadata ``recording`` (software version, command line, start, frames written and
   dropped), and the DBC and the scenario (if given) as attachments.
 """
@@ -47,7 +51,17 @@ from protocol.messages import (
 from protocol.node import stop_on_signals
 from protocol.realtime import yield_to_the_nodes
 from protocol.scenario import Scenario, scenario_document
-from recorder.mcap_can import FrameChannels, RecordingError, finish, open_writer
+from recorder.mcap_can import (
+    FLUSH_PERIOD,
+    FrameChannels,
+    RecorderCounts,
+    RecordingError,
+    counts_channel,
+    end_chunk,
+    finish,
+    flush,
+    open_writer,
+)
 from recorder.recover import recover
 from sim.report import LOG_FILE
 
@@ -149,6 +163,8 @@ class Recorder:
         self._writer = open_writer(self._stream)
         self._frames = FrameChannels(self._writer)
         self._state = StateChannels(self._writer, robot)
+        self._counts = counts_channel(self._writer)
+        flush(self._writer)  # the header on disk: killed before its first chunk, still MCAP
         self._started = time.time()
         self._command_line = list(command_line)
         self._thread = threading.Thread(target=self._write_loop, name="mcap-writer")
@@ -178,12 +194,32 @@ class Recorder:
         }
 
     def _write_loop(self) -> None:
+        """Write what the reader queues; end the chunk and flush it once its first message is
+        :data:`FLUSH_PERIOD` old, whether frames keep coming or stop."""
+        flush_at: float | None = None
         while True:
-            message = self._queue.get()
+            try:
+                wait = None if flush_at is None else max(0.0, flush_at - time.monotonic())
+                message = self._queue.get(timeout=wait)
+            except queue.Empty:  # the chunk is due and nothing more came
+                self._flush()
+                flush_at = None
+                continue
             if message is None:
                 return
             self._frames.write(message)
             self._state.feed(message, self.counts)
+            if flush_at is None:
+                flush_at = time.monotonic() + FLUSH_PERIOD
+            elif time.monotonic() >= flush_at:
+                self._flush()
+                flush_at = None
+
+    def _flush(self) -> None:
+        """End the chunk with the counts so far, and hand it to the OS."""
+        end_chunk(
+            self._writer, self._counts, RecorderCounts(self.received, self.dropped), time.time_ns()
+        )
 
     def stop(self) -> None:
         """End :meth:`run` (from a signal handler)."""
@@ -196,6 +232,7 @@ class Recorder:
         the run in ``run``, if there are), and the index; close."""
         self._queue.put(None)
         self._thread.join()
+        self._flush()
         writer = self._writer
         now = time.time_ns()
         writer.add_attachment(now, now, "scara.dbc", "text/plain", DBC_TEXT.encode())
@@ -261,7 +298,8 @@ def build_recover_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scara-record recover",
         description="Rewrite an MCAP file cut short (its writer killed) as a valid, indexed "
-        "MCAP with every complete chunk, and report what was lost.",
+        "MCAP with every complete chunk, and report what it kept and what it could not: the "
+        "cut bytes, and the frames the recorder had counted that are not in the file.",
     )
     parser.add_argument("file", type=Path, help="the damaged recording")
     parser.add_argument(

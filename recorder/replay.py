@@ -5,6 +5,11 @@ reads (``.blf``, ``.asc``, ``.csv``, ``.log`` ...) and sends its frames onto the
 as every command chooses one. Frame ``i`` goes out at ``start + (t_i - t_0) / rate``, slept
 to as an absolute deadline, so errors do not add up. While it runs, the space bar pauses and
 resumes (when the terminal is interactive); Ctrl-C stops it cleanly.
+
+Before it closes, a replay waits until what it sent has been taken (:data:`DELIVERY_TIMEOUT`):
+closing a Zenoh session drops whatever is still in flight to a slow or stalled receiver, and
+a replay as fast as possible always has frames in flight at its end. It says so, and exits 1,
+if that was not confirmed.
 """
 
 from __future__ import annotations
@@ -52,6 +57,9 @@ TOGETHER = 2e-4
 """s: frames due within this of each other go out in one call (a tick's frames, together)."""
 BATCH = 256
 """Frames sent in one call when there is no pace to keep (``--as-fast-as-possible``)."""
+DELIVERY_TIMEOUT = 60.0
+"""s a replay waits at its end for its receivers to confirm they have taken all it sent: a
+stalled receiver (a busy machine) holds a replay as fast as possible this long at most."""
 
 
 def read_frames(path: Path) -> Generator[can.Message, None, None]:
@@ -180,11 +188,18 @@ def read_state(path: Path) -> Iterator[StateSample]:
 
 
 class ZenohStateSink:
-    """Puts decoded samples on the robot's state keys, as the bridge would."""
+    """Puts decoded samples on the robot's state keys, as the bridge would, but with
+    congestion control BLOCK on every key: the live bridge drops telemetry rather than hold
+    up the robot, a replay has nothing to keep pace with and must not lose a sample."""
 
     def __init__(self, session: zenoh.Session, robot: str) -> None:
+        self._session = session
+        self._barrier_key = state_key(robot, STATE_KEYS[0])
         self._publishers = {
-            name: session.declare_publisher(state_key(robot, name)) for name in STATE_KEYS
+            name: session.declare_publisher(
+                state_key(robot, name), congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            for name in STATE_KEYS
         }
 
     def send_many(self, samples: Sequence[StateSample]) -> None:
@@ -192,6 +207,57 @@ class ZenohStateSink:
             publisher = self._publishers.get(sample.name)
             if publisher is not None:
                 publisher.put(sample.data)
+
+    def deliver(self, timeout: float) -> Delivery:
+        """Wait until the router has routed every sample put so far: a query travels behind
+        them on the same link, and the router answers it (with its final reply, queryable or
+        not) only after it has queued each of them for every subscriber (BLOCK). Subscribers
+        answer nothing, so this is as far as a replay can confirm; the router forwards the
+        rest on its own after the replay has gone."""
+        began = time.monotonic()
+        replies = self._session.get(
+            self._barrier_key,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            timeout=timeout,
+        )
+        for _ in replies:  # ends with the router's final reply, or at the timeout
+            pass
+        return Delivery(time.monotonic() - began < timeout, "the router", timeout)
+
+
+@dataclass(frozen=True, slots=True)
+class Delivery:
+    """Whether what a replay sent was confirmed taken before it closed, and by whom."""
+
+    confirmed: bool
+    by: str
+    within: float
+    """s it waited at most."""
+
+    def summary(self) -> str:
+        if self.confirmed:
+            return f"taken by {self.by}"
+        return (
+            f"NOT confirmed taken by {self.by} within {self.within:g} s: what was still in "
+            "flight (a stalled receiver) is lost"
+        )
+
+
+def deliver_frames(bus: can.BusABC, timeout: float) -> Delivery | None:
+    """Wait until every bus on the channel has taken every frame sent: CAN over Zenoh's flush
+    barrier, which returns before its timeout only once every bus has answered (a bus
+    answers once it holds every frame sent before the question). None for other buses,
+    whose ``send`` hands a frame to the kernel or the driver, which outlives the replay."""
+    flush = getattr(bus, "flush", None)
+    if flush is None:
+        return None
+    began = time.monotonic()
+    answered = flush(timeout)
+    confirmed = time.monotonic() - began < timeout
+    listening = f"the {answered} bus{'es' if answered != 1 else ''} listening"
+    return Delivery(confirmed, listening, timeout)
 
 
 def replay(
@@ -250,7 +316,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scara-replay",
         description="Send a recording's CAN frames (MCAP or any python-can log) onto a bus at "
-        "the recorded pace. Space pauses and resumes; Ctrl-C stops.",
+        "the recorded pace. Space pauses and resumes; Ctrl-C stops. At the end it waits (up to "
+        f"{DELIVERY_TIMEOUT:g} s) until its receivers have taken all it sent, and exits 1 if "
+        "that is not confirmed.",
     )
     parser.add_argument("file", type=Path, help="the recording (.mcap, .blf, .asc, .log ...)")
     pace = parser.add_mutually_exclusive_group()
@@ -367,14 +435,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     pause = Pause()
     pause.listen()
     sent = 0
+    delivery: Delivery | None = None
     try:
         for round_number in range(args.loop):
             messages = selected(source(args.file), wanted, args.start_offset, args.until)
             label = f"{args.file.name}" + (f" #{round_number + 1}" if args.loop > 1 else "")
             with tqdm(desc=label, unit=" frames", disable=None, file=sys.stderr) as progress:
                 sent += replay(bus, messages, rate, pause, progress)
+        if to_zenoh:
+            delivery = bus.deliver(DELIVERY_TIMEOUT)
+        else:
+            delivery = deliver_frames(bus, DELIVERY_TIMEOUT)
     except KeyboardInterrupt:
-        print("\nscara-replay: interrupted", file=sys.stderr)
+        print("\nscara-replay: interrupted (what was in flight may be lost)", file=sys.stderr)
     except RecordingError as error:
         print(f"scara-replay: {error}", file=sys.stderr)
         return 2
@@ -384,8 +457,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             session.close()  # type: ignore[no-untyped-call]
         else:
             bus.shutdown()
-    print(f"scara-replay: {sent} {'samples' if to_zenoh else 'frames'} sent", file=sys.stderr)
-    return 0
+    what = f"scara-replay: {sent} {'samples' if to_zenoh else 'frames'} sent"
+    if delivery is None:
+        print(what, file=sys.stderr)
+        return 0
+    print(f"{what}, {delivery.summary()}", file=sys.stderr)
+    return 0 if delivery.confirmed else 1
 
 
 if __name__ == "__main__":

@@ -10,13 +10,17 @@ import can
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
 
 from recorder.mcap_can import (
     CHUNK_SIZE,
     FrameChannels,
+    RecorderCounts,
     RecordingError,
     check_mcap,
+    counts_channel,
+    end_chunk,
     finish,
     frames,
     open_writer,
@@ -151,21 +155,51 @@ def test_a_file_cut_short_is_recovered_up_to_its_last_complete_chunk(tmp_path: P
     write(whole, messages)
     data = whole.read_bytes()
     assert len(data) > 3 * CHUNK_SIZE / 10  # compressed, yet more than one chunk
-    cut = tmp_path / "cut.mcap"
-    cut.write_bytes(data[: len(data) * 2 // 3])  # the writer killed: no summary, no index
+    with whole.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) > 2
+    chunk = summary.chunk_indexes[-2]
+    cut = tmp_path / "cut.mcap"  # the writer killed in the middle of a chunk: no summary
+    cut.write_bytes(data[: chunk.chunk_start_offset + chunk.chunk_length // 2])
     with pytest.raises(RecordingError, match="scara-record recover"):
         list(read_frames(cut))
 
     report = recover(cut, tmp_path / "fixed.mcap")
     back = list(read_frames(tmp_path / "fixed.mcap"))
-    assert not report.was_complete and report.lost_bytes > 0
-    assert 0 < len(back) == report.messages < count
+    assert not report.was_complete and report.cut is not None
+    assert 0 < len(back) == report.frames < count and report.other_messages == 0
     assert [key(m) for m in back] == [key(m) for m in messages[: len(back)]]  # a prefix
     assert same_times(back, messages[: len(back)])
-    assert f"{report.messages} messages" in report.summary(tmp_path / "fixed.mcap")
+    # the cut chunk's head says which messages it held: those right after the kept ones
+    assert report.cut.opcode == Opcode.CHUNK and report.cut.chunk_log_times is not None
+    assert report.cut.chunk_log_times == (chunk.message_start_time, chunk.message_end_time)
+    assert chunk.message_start_time == round(messages[len(back)].timestamp * 1e9)
+    summary = report.summary(tmp_path / "fixed.mcap")
+    assert f"kept {report.frames} CAN frames" in summary and "cannot be counted" in summary
+    assert f"cut off: the last {report.cut.size} bytes, the start of a chunk record" in summary
+    assert "counts: none in the file" in summary  # python-can's logger writes none
 
     complete = recover(whole, tmp_path / "again.mcap")
-    assert complete.was_complete and complete.lost_bytes == 0 and complete.messages == count
+    assert complete.was_complete and complete.cut is None and complete.frames == count
+    assert "nothing was cut" in complete.summary(tmp_path / "again.mcap")
+
+
+def test_recovery_counts_what_the_recorder_received_and_the_file_lacks(tmp_path: Path) -> None:
+    """The recorder's counts at its last flush say 10 frames received, 3 dropped; the file
+    holds 5 frames: 5 of those received are not in it (3 dropped, 2 queued and lost)."""
+    path = tmp_path / "counted.mcap"
+    with path.open("wb") as stream:
+        writer = open_writer(stream)
+        channels, counts = FrameChannels(writer), counts_channel(writer)
+        for message in FRAMES:
+            channels.write(message)
+        end_chunk(writer, counts, RecorderCounts(received=10, dropped=3), 7)  # then killed
+    report = recover(path, tmp_path / "fixed.mcap")
+    assert report.cut is None and report.frames_not_kept == 5
+    assert report.counts == RecorderCounts(10, 3) and report.counts_log_time == 7
+    summary = report.summary(tmp_path / "fixed.mcap")
+    assert "10 frames received, 3 dropped; 5 of them not in the file" in summary, summary
+    assert "cut off: nothing" in summary and "cannot be counted" in summary
 
 
 @pytest.mark.parametrize(
