@@ -49,7 +49,7 @@ class Bus:
             Behaviour=behaviour, Holds=0, Waypoint=waypoint, Progress=progress, LatenessMax=40
         )
         status = CONTROLLER_STATUS.Record(
-            State=state, FaultCode=faults, Flags=flags, BadFrames=0, World=0, Extra=3
+            State=state, FaultCode=faults, Flags=flags, BadFrames=0, Extra=3
         )
         before = len(self.events)
         for codec, record in (

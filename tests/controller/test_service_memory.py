@@ -84,6 +84,7 @@ class World:
     def sleep(self, seconds: float) -> None:
         self.clock.now += seconds + self.late.uniform(0.0, LATE)
         self.plant.drain()
+        self.plant.take_worlds()
         self.plant.on_period(self.clock.now)
         self.plant.send_status_if_due(self.clock.now)
         self.operator.step(0.0)

@@ -18,7 +18,7 @@ from protocol.keys import (
     state_key,
 )
 
-DOCUMENTS = {"definitions", "task", "scenario-file", "fuzzy-rules"}
+DOCUMENTS = {"definitions", "task", "scenario-file", "fuzzy-rules", "world"}
 """The schemas of the project's documents and their shared definitions."""
 
 
