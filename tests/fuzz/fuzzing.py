@@ -5,9 +5,9 @@ The saved examples. Hypothesis keeps every input that once failed a fuzz test in
 ``tests/fuzz/.examples/`` (a :class:`DirectoryBasedExampleDatabase`, committed; hidden, as
 hypothesis's own ``.hypothesis/``, its folders being hashes no reader needs): each run
 replays them before it generates new inputs, so a bug found once stays tested. Locally the
-directory only grows: a new counterexample is written there (commit it with the fix), and
-an example that passes again is never deleted (:class:`KeptExamples`). In CI it is read only
-(:class:`ReadOnlyDatabase`): a run never changes the tree.
+directory only grows: a new counterexample is written there (the smallest: commit it with
+the fix), and an example that passes again is never deleted (:class:`KeptExamples`). In CI
+it is read only (:class:`ReadOnlyDatabase`): a run never changes the tree.
 
 Determinism. The ``ci`` profile (``tests/conftest.py``, when ``CI`` is set) derandomizes:
 the inputs are derived from each test, and a red run is repeatable. Hypothesis takes
@@ -44,24 +44,34 @@ IN_CI = bool(os.environ.get("CI"))
 
 
 class KeptExamples(ExampleDatabase):
-    """A directory of examples that only grows: saved examples are never deleted or moved,
-    so the committed corpus of once-failing inputs keeps being replayed after the fix."""
+    """The saved examples as a local run should change them: a new counterexample is added
+    (the smallest one hypothesis found, not the steps of its shrinking nor its secondary
+    corpus), and an example that was there before the run (committed) is never deleted,
+    though it passes now: it is a regression test."""
 
     def __init__(self, path: Path) -> None:
         super().__init__()
         self.directory = DirectoryBasedExampleDatabase(path)
+        self._added: set[tuple[bytes, bytes]] = set()
 
     def fetch(self, key: bytes) -> Iterable[bytes]:
         return self.directory.fetch(key)
 
     def save(self, key: bytes, value: bytes) -> None:
+        if key.endswith((b".secondary", b".pareto")):
+            return
+        if value not in set(self.directory.fetch(key)):
+            self._added.add((key, value))
         self.directory.save(key, value)
 
     def delete(self, key: bytes, value: bytes) -> None:
-        """Kept: an example that passes now is a regression test."""
+        if (key, value) in self._added:  # a step of this run's shrinking
+            self._added.discard((key, value))
+            self.directory.delete(key, value)
 
     def move(self, src: bytes, dest: bytes, value: bytes) -> None:
-        self.directory.save(dest, value)
+        self.delete(src, value)
+        self.save(dest, value)
 
     def __repr__(self) -> str:
         return f"KeptExamples({self.directory.path!s})"
