@@ -210,6 +210,16 @@ class E2EStream(RuleBasedStateMachine):
         frame_id, data = frame
         self.send(self.message(frame_id, data, frozenset(flags)))
 
+    @rule(data=st.data())
+    def wrong_crc(self, data: st.DataObject) -> None:
+        """A frame of an ID the node listens to, its next counter, valid but for its CRC."""
+        frame_id = data.draw(st.sampled_from(sorted(self.wanted)), label="wanted ID")
+        codec = WIRE.by_id[frame_id]
+        counter = (self.counters.get(frame_id, -1) + 1) % COUNTER_MODULO
+        good = codec.encode(data.draw(records(codec), label="record"), counter)
+        crc = data.draw(st.integers(0, 255).filter(lambda byte: byte != good[0]), label="crc")
+        self.send(self.message(frame_id, bytes([crc]) + good[1:]))
+
     @precondition(lambda self: bool(self.sent))
     @rule(data=st.data())
     def replayed_frame(self, data: st.DataObject) -> None:

@@ -68,15 +68,25 @@ a transfer times out after a second of the test's time, never of the machine's."
 # --- what is sent ----------------------------------------------------------------------------
 
 
+REFUSED = {
+    "unreachable": (1, {"x": 2.0}),  # each answered with its own reason
+    "inside the obstacle": (1, {"x": 0.455, "y": -0.01}),
+    "time going back": (2, {"t": 0.5}),
+}
+
+
 @st.composite
 def task_payloads(draw: st.DrawFn) -> bytes:
-    """A transfer's payload: a task with its ticket, valid, edited, or any JSON at all."""
+    """A transfer's payload: a task with its ticket, valid, one the rules refuse, edited, or
+    any JSON at all."""
     ticket = draw(st.one_of(st.integers(0, 255), json_values), label="ticket")
     moved = draw(st.sampled_from([0.0, -0.02, 0.01]), label="moved by")
-    valid = TASK | {
-        "ticket": ticket,
-        "waypoints": [w | {"x": w["x"] + moved} for w in TASK["waypoints"]],
-    }
+    waypoints = [w | {"x": w["x"] + moved} for w in TASK["waypoints"]]
+    refused = draw(st.sampled_from([None, *REFUSED]), label="refused as")
+    if refused is not None:
+        index, change = REFUSED[refused]
+        waypoints[index] = waypoints[index] | change
+    valid = TASK | {"ticket": ticket, "waypoints": waypoints}
     documents = st.one_of(st.just(valid), mutated_json(valid), json_values)
     return draw(json_texts(documents))[:MAX_PAYLOAD]
 
