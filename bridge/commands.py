@@ -9,17 +9,20 @@ reason the controller would give. Pure: no bus, no Zenoh.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from controller.planner import check_plan
 from protocol.errors import ConfigError, ScaraError
 from protocol.messages import reason_of
 from protocol.scenario import Scenario, parse_task, task_document
-from protocol.validation import SUFFIX, check
+from protocol.validation import SUFFIX, check, read_json
 
 TASK_COMMANDS = ("waypoints", "obstacle", "mode")
 """Commands that change the task (sent over ISO-TP); the others are NodeCommands."""
+MAX_PAYLOAD_BYTES = 65536
+"""The longest payload a command is read from: 32 waypoints, pretty-printed, take a few
+kilobytes, and a task travels in one ISO-TP transfer of at most 4095 bytes anyway. Anything
+longer is refused unread (reading and checking megabytes would hold the bridge up)."""
 
 
 class MalformedCommandError(ScaraError):
@@ -51,14 +54,12 @@ class RefusedError(Exception):
 
 def parse_payload(command: str, payload: bytes) -> dict[str, Any]:
     """The command's JSON body (an empty payload is ``{}``), checked against its schema."""
-    if not payload.strip():
-        body: Any = {}
-    else:
-        try:
-            body = json.loads(payload.decode())
-        except (UnicodeDecodeError, json.JSONDecodeError) as error:
-            raise MalformedCommandError("payload", f"not UTF-8 JSON: {error}") from None
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise MalformedCommandError(
+            "payload", f"{len(payload)} bytes; a command takes at most {MAX_PAYLOAD_BYTES}"
+        )
     try:
+        body: Any = read_json(payload, "payload") if payload.strip() else {}
         check(body, f"cmd-{command}{SUFFIX}", root="payload")
     except ConfigError as error:
         message = str(error).removeprefix(f"{error.field}: ")

@@ -32,7 +32,7 @@ from protocol.errors import (
 from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow, inverse
 from protocol.messages import COMMAND, STATE
-from protocol.validation import check
+from protocol.validation import check, read_json
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 WAYPOINT_TOLERANCE = 0.002
@@ -98,9 +98,17 @@ def load_scenario(source: str | Path) -> Scenario:
         known = ", ".join(sorted(p.stem for p in SCENARIO_DIR.glob("*.toml")))
         raise ConfigError("scenario", f"no file {str(source)!r} (packaged scenarios: {known})")
     try:
-        document = tomllib.loads(path.read_text())
+        text = path.read_bytes().decode()
+    except OSError as error:  # a directory, no permission
+        raise ConfigError(str(path), f"cannot be read: {error.strerror}") from None
+    except UnicodeDecodeError as error:
+        raise ConfigError(str(path), f"not UTF-8 text: {error}") from None
+    try:
+        document = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(str(path), f"not valid TOML: {error}") from error
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        raise ConfigError(str(path), "not valid TOML: nested too deeply") from None
     return parse_scenario(document, default_name=path.stem)
 
 
@@ -123,7 +131,18 @@ def parse_task(document: Mapping[str, Any], base: Scenario) -> Scenario:
     obstacle, settling time, elbow) on ``base``'s robot, gains and plant model, checked as a
     scenario file is. The JSON an operator sends over the wire (:func:`encode_task`)."""
     check(document, "task.schema.json")
-    return _with_task(base, document, document.get("name", "task"))
+    task = _with_task(base, document, document.get("name", "task"))
+    size = len(_task_payload(task, TICKET_MAX))
+    if size > MAX_TASK_BYTES:
+        # What the controller sends back when asked (every field, non-ASCII escaped) must fit
+        # one transfer too: a long name in other scripts takes up to six bytes a character.
+        nameless = len(_task_payload(replace(task, name=""), TICKET_MAX))
+        raise ConfigError(
+            "name" if nameless <= MAX_TASK_BYTES else "waypoints",
+            f"the task takes {size} bytes written out, at most {MAX_TASK_BYTES} "
+            "(one ISO-TP transfer)",
+        )
+    return task
 
 
 def task_document(scenario: Scenario) -> dict[str, Any]:
@@ -169,10 +188,13 @@ MAX_TASK_BYTES = 4095
 """The most one ISO-TP transfer on classic CAN carries."""
 
 
+TICKET_MAX = 255
+"""The largest ticket (one byte): the longest a task's payload gets."""
+
+
 def encode_task(scenario: Scenario, ticket: int) -> bytes:
     """The task as compact UTF-8 JSON with the sender's ``ticket`` (0-255), for ScenarioUpload."""
-    document = {"ticket": ticket} | task_document(scenario)
-    payload = json.dumps(document, separators=(",", ":")).encode()
+    payload = _task_payload(scenario, ticket)
     if len(payload) > MAX_TASK_BYTES:
         raise ConfigError(
             "waypoints", f"the task takes {len(payload)} bytes, at most {MAX_TASK_BYTES}"
@@ -180,13 +202,15 @@ def encode_task(scenario: Scenario, ticket: int) -> bytes:
     return payload
 
 
+def _task_payload(scenario: Scenario, ticket: int) -> bytes:
+    document = {"ticket": ticket} | task_document(scenario)
+    return json.dumps(document, separators=(",", ":")).encode()
+
+
 def read_task(payload: bytes) -> tuple[int, dict[str, Any]]:
     """``(ticket, task document)`` of a transfer, for :func:`parse_task`; :class:`ConfigError`
     (field ``document`` or ``ticket``) if it is not a JSON object with a valid ticket."""
-    try:
-        document = json.loads(payload.decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ConfigError("document", f"not UTF-8 JSON: {error}") from error
+    document = read_json(payload, "document")
     if not isinstance(document, dict):
         raise ConfigError("document", "must be a JSON object")
     ticket = document.pop("ticket", 0)

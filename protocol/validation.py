@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import reprlib
 from collections.abc import Iterator, Mapping
 from functools import cache
 from importlib import resources
@@ -85,9 +87,43 @@ def check(document: object, reference: str, field: str = "", root: str = "docume
     ``definitions.schema.json#/$defs/controller``); ``field`` names where the document sits
     (``controller``), so that the error names the whole path (``controller.rate_hz``), and
     ``root`` the document itself where it is wrong as a whole (``payload``)."""
-    error = best_match(_validator(reference).iter_errors(document))
-    if error is not None:
-        raise _config_error(error, field, root)
+    try:
+        error = best_match(_validator(reference).iter_errors(document))
+        if error is None:
+            return
+        refusal = _config_error(error, field, root)
+    except RecursionError:  # a document nested deeper than Python's stack (JSON allows it)
+        refusal = ConfigError(field or root, "nested too deeply")
+    raise refusal
+
+
+MAX_NESTING: Final = 32
+"""The deepest a JSON document the project reads may nest (a task nests 3 deep): deeper is
+refused before it is parsed, the same way in every process (Python's own limit, hit while
+parsing, depends on the caller's stack)."""
+_TOKENS: Final = re.compile(rb'"(?:[^"\\]|\\.|\\\Z)*+(?:"|\Z)|[\[\]{}]', re.DOTALL)
+"""A JSON string (to its end, or to the end of the text if it has none: never a failed match,
+so one pass), or a bracket."""
+
+
+def read_json(payload: bytes, field: str) -> Any:
+    """The JSON document in ``payload`` (UTF-8); :class:`ConfigError` naming ``field`` if it
+    is not UTF-8 JSON, or nests deeper than :data:`MAX_NESTING`."""
+    depth = deepest = 0
+    for token in _TOKENS.findall(payload):
+        if token in (b"[", b"{"):
+            depth += 1
+            deepest = max(deepest, depth)
+        elif token in (b"]", b"}"):
+            depth -= 1
+    if deepest > MAX_NESTING:
+        raise ConfigError(field, f"nested {deepest} deep, at most {MAX_NESTING}")
+    try:
+        return json.loads(payload.decode())
+    except RecursionError:  # cannot happen within MAX_NESTING; kept as a guard
+        raise ConfigError(field, "nested too deeply") from None
+    except ValueError as error:  # not UTF-8, not JSON, or an integer of 4300+ digits
+        raise ConfigError(field, f"not UTF-8 JSON: {error}") from None
 
 
 def field_name(*parts: str | int) -> str:
@@ -112,7 +148,16 @@ _Validator: Any = jsonschema.validators.extend(
 
 
 def _is_finite(instance: object) -> bool:
-    return not isinstance(instance, float) or math.isfinite(instance)
+    """A float that is not NaN or infinite, or an integer a float holds (JSON and TOML
+    integers have no bound: 10**400 would overflow where the value is used)."""
+    if isinstance(instance, float):
+        return math.isfinite(instance)
+    if isinstance(instance, int):
+        try:
+            float(instance)
+        except OverflowError:
+            return False
+    return True
 
 
 _FORMATS: Final = jsonschema.FormatChecker(formats=())
@@ -182,8 +227,28 @@ def _config_error(error: ValidationError, field: str, root: str) -> ConfigError:
         known = _known_properties(schema)
         unknown = sorted(str(name) for name in instance if name not in known)[0]
         listed = f"known: {', '.join(sorted(known))}" if known else "none is known"
-        return ConfigError(field_name(where, unknown), f"unknown field; {listed}")
+        return ConfigError(field_name(where, _key(unknown)), f"unknown field; {listed}")
     return ConfigError(where or root, _message(error))
+
+
+_KEY_LENGTH: Final = 64
+
+
+def _key(name: str) -> str:
+    """A document's own key as a field name: as written, or quoted (and cut short) where it
+    is empty, long or not printable, so that the error still names it."""
+    if name and len(name) <= _KEY_LENGTH and name.isprintable():
+        return name
+    return json.dumps(name[:_KEY_LENGTH]) + ("..." if len(name) > _KEY_LENGTH else "")
+
+
+_SHOWN: Final = reprlib.Repr()
+"""How a wrong value is shown in a message: a sentence, not the document (cut short, and
+not nested deeper than a few levels)."""
+_SHOWN.maxlevel = 3
+_SHOWN.maxstring = _SHOWN.maxother = _SHOWN.maxlong = 60
+_SHOWN.maxlist = _SHOWN.maxdict = 6
+_MESSAGE_LENGTH: Final = 200
 
 
 def _message(error: ValidationError) -> str:
@@ -194,7 +259,7 @@ def _message(error: ValidationError) -> str:
         error.instance,
         error.schema,
     )
-    got = f"got {instance!r}"
+    got = f"got {_SHOWN.repr(instance)}"
     if keyword == "format" or (keyword == "type" and schema.get("format") == "finite"):
         return f"must be a finite number, {got}"
     if keyword == "type":
@@ -226,4 +291,5 @@ def _message(error: ValidationError) -> str:
         return f"must hold {side} {bound} entries, {count}"
     if keyword == "minProperties":
         return "must not be empty"
-    return str(error.message)
+    message = str(error.message)  # jsonschema's, which may hold the whole value
+    return message if len(message) <= _MESSAGE_LENGTH else message[:_MESSAGE_LENGTH] + "..."
