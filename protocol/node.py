@@ -102,7 +102,9 @@ class Node:
     def handle(self, message: can.Message) -> None:
         """Act on one received frame, or count it and drop it."""
         link = self._links.get(message.arbitration_id)
-        if link is not None:
+        if link is not None and not (
+            message.is_error_frame or message.is_remote_frame or message.is_extended_id
+        ):  # ISO-TP rides on standard data frames only
             link.feed(message)
             return
         accepted = self.monitor.accept(message, self._accepted)

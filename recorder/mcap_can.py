@@ -17,12 +17,14 @@ indexed, so a file cut short is readable up to its last complete chunk.
 from __future__ import annotations
 
 import json
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
 import can
+import zstandard
 from can.io.generic import BinaryIOMessageReader, BinaryIOMessageWriter
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -30,6 +32,20 @@ from mcap.writer import CompressionType, Writer
 
 from protocol.codec import WIRE
 from protocol.errors import ScaraError
+
+DAMAGE_ERRORS = (
+    McapError,
+    EOFError,
+    ValueError,
+    KeyError,
+    struct.error,
+    OverflowError,
+    MemoryError,
+    zstandard.ZstdError,
+)
+"""What the mcap library raises on a damaged file (cut, corrupt chunk, wild lengths)."""
+READ_ERRORS = (*DAMAGE_ERRORS, OSError)
+"""And a file that cannot be read at all."""
 
 FRAME_ENCODING = "can-frame"
 TOPIC_PREFIX = "can/"
@@ -245,7 +261,7 @@ def frames(stream: IO[bytes]) -> Iterator[can.Message]:
                 dlc=len(message.data),
                 data=message.data,
             )
-    except (McapError, EOFError, OSError, ValueError, KeyError) as error:
+    except READ_ERRORS as error:
         raise RecordingError(
             f"not a readable MCAP recording ({error}); if its writer was killed, "
             "'scara-record recover FILE' rewrites it"
@@ -269,7 +285,7 @@ def read_attachments(path: Path) -> dict[str, bytes]:
     try:
         with path.open("rb") as stream:
             return {a.name: a.data for a in make_reader(stream).iter_attachments()}
-    except (McapError, OSError, ValueError, EOFError) as error:
+    except READ_ERRORS as error:
         raise RecordingError(
             f"{path}: not a readable MCAP recording ({error}); if its writer was killed, "
             "'scara-record recover FILE' rewrites it"

@@ -318,6 +318,9 @@ def main_recover(argv: Sequence[str]) -> int:
     except RecordingError as error:
         print(f"scara-record recover: {error}", file=sys.stderr)
         return 2
+    except OSError as error:
+        print(f"scara-record recover: {out}: {error.strerror}", file=sys.stderr)
+        return 2
     print(report.summary(out))
     return 0
 

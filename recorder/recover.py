@@ -18,16 +18,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-import zstandard
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from recorder.mcap_can import (
     COUNTS_TOPIC,
+    DAMAGE_ERRORS,
     FLUSH_PERIOD,
     FRAME_ENCODING,
+    FrameKind,
     RecorderCounts,
     RecordingError,
     check_mcap,
@@ -190,6 +190,11 @@ def recover(source: Path, out: Path) -> RecoveryReport:
                 elif isinstance(record, Channel) and record.id not in channels:
                     if record.schema_id not in schemas:
                         continue  # its schema was in the part that is lost
+                    if record.message_encoding == FRAME_ENCODING:
+                        try:
+                            FrameKind.from_metadata(dict(record.metadata))
+                        except RecordingError:
+                            continue  # a CAN channel whose metadata is corrupt: no frames
                     channels[record.id] = writer.register_channel(
                         record.topic,
                         record.message_encoding,
@@ -240,7 +245,7 @@ def recover(source: Path, out: Path) -> RecoveryReport:
                 elif isinstance(record, Header):
                     started = True
                 kept = stream.tell()
-        except (McapError, EOFError, struct.error, ValueError, MemoryError, zstandard.ZstdError):
+        except DAMAGE_ERRORS:  # not OSError: a failing write is no damage of the source
             pass  # the cut: everything before it is in
         cut = None if complete or kept >= size else _describe_cut(stream, kept, size)
         finish(writer)

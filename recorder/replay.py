@@ -29,7 +29,6 @@ from typing import Any, Protocol
 
 import can
 import zenoh
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from tqdm import tqdm
 
@@ -47,7 +46,14 @@ from protocol.errors import ScaraError
 from protocol.keys import STATE_KEYS, check_robot, state_key
 from protocol.realtime import tune_process
 from protocol.scenario import parse_scenario
-from recorder.mcap_can import DBC_NAMES, RecordingError, check_mcap, frames, read_attachments
+from recorder.mcap_can import (
+    DBC_NAMES,
+    READ_ERRORS,
+    RecordingError,
+    check_mcap,
+    frames,
+    read_attachments,
+)
 from recorder.node import STATE_PREFIX
 from recorder.regression import regress
 
@@ -183,7 +189,7 @@ def read_state(path: Path) -> Iterator[StateSample]:
                 if channel.topic.startswith(STATE_PREFIX) and channel.message_encoding == "json":
                     name = channel.topic.removeprefix(STATE_PREFIX)
                     yield StateSample(message.log_time / 1e9, name, message.data)
-    except (McapError, EOFError, OSError, ValueError) as error:
+    except READ_ERRORS as error:
         raise RecordingError(f"{path}: not a readable MCAP recording ({error})") from None
 
 

@@ -27,7 +27,7 @@ import can
 import isotp.tools
 import pytest
 from fuzzing import deep, fuzz, json_texts, json_values, mutated, mutated_json
-from hypothesis import Phase, example, given
+from hypothesis import example, given
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule, run_state_machine_as_test
 from support import FakeClock, frame
@@ -417,20 +417,12 @@ def test_tasks_over_isotp_change_the_task_only_when_valid_and_never_move_the_arm
 @pytest.mark.parametrize(
     "flag",
     [
-        pytest.param(
-            "error",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="protocol/node.py Node.handle feeds every frame of ScenarioUpload's ID "
-                "to ISO-TP, error frames included: error frames carrying a task's segments "
-                "set the task",
-            ),
-        ),
+        "error",
         "remote",
         "extended",
     ],
 )
-@fuzz(10, phases=(Phase.explicit, Phase.reuse, Phase.generate))  # an xfail: no shrinking
+@fuzz(10)
 @given(payload=task_payloads())
 @example(payload=json.dumps(TASK | {"ticket": 7}).encode())  # a valid task
 def test_frames_that_are_no_data_frames_of_scenario_upload_carry_no_task(
