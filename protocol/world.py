@@ -13,10 +13,9 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
-from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder
 from protocol.scenario import Scenario, obstacle_document, obstacle_of
-from protocol.validation import check
+from protocol.validation import check, read_json
 
 STARTUP_WORLD = 0
 """The number of the world a plant starts with: its own scenario file's obstacle."""
@@ -58,10 +57,7 @@ def next_world(number: int) -> int:
 def read_world(payload: bytes) -> World:
     """The world of a WorldUpload transfer; :class:`ConfigError` naming the field if it is not
     one (the world's schema, then the obstacle's own rule)."""
-    try:
-        document = json.loads(payload.decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ConfigError("world", f"not UTF-8 JSON: {error}") from None
+    document = read_json(payload, "world")
     check(document, "world.schema.json")
     obstacle, tool_radius = obstacle_of(document["obstacle"])
     return World(document["world"], obstacle, tool_radius)
