@@ -32,12 +32,17 @@ def test_serve_runs_the_scenario_on_command_and_stops_on_ctrl_c(processes: Proce
 
     subscriber = session.declare_subscriber(f"scara/{ROBOT}/events", on_event)
 
-    def ready() -> bool:
+    def ready() -> bool:  # a run needs the plant too, holding the task's world (not its own)
         assert launcher.poll() is None, processes.outputs()
         status = latest(session, f"scara/{ROBOT}/status", timeout=1.0)
-        return bool(status and status["controller"]["state"] == "ready")
+        return bool(
+            status
+            and status["controller"]["state"] == "ready"
+            and status["plant"]["alive"]
+            and status["plant"]["world"] != 0
+        )
 
-    wait_until(ready, START, "a ready controller behind the bridge")
+    wait_until(ready, START, "a ready controller and plant behind the bridge")
     wait_until(
         lambda: latest(session, f"scara/{ROBOT}/scenario", timeout=1.0) is not None,
         5.0,
