@@ -47,9 +47,6 @@ from protocol.scenario import Mode
 from protocol.zenoh_can.config import (
     DEFAULT_HOST,
     DEFAULT_PORT,
-    build_zenoh_config,
-    client_config,
-    close,
     router_reachable,
 )
 from sim.report import LOG_FILE, RECORDING, format_report, read_run
@@ -250,19 +247,6 @@ def secure_router_command(args: argparse.Namespace, folder: Path) -> list[str]:
     return command + ["-v"] * args.verbose
 
 
-def logs_in(host: str, port: int, user: str, password: str) -> bool:
-    """True if a router at ``host:port`` answers and lets ``user`` in (a secure router
-    refuses a session without credentials, so :func:`router_reachable` cannot tell)."""
-    try:
-        session = zenoh.open(build_zenoh_config(client_config(host, port, user, password)))
-    except zenoh.ZError:
-        return False
-    try:
-        return bool(session.info.routers_zid())
-    finally:
-        close(session)
-
-
 def serving_hint(args: argparse.Namespace, users: dict[str, str]) -> str:
     """How to reach the robot being served: the monitor's command line, per user."""
     host, port = keys_router(args)
@@ -436,7 +420,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             with tempfile.TemporaryDirectory(prefix="scara-run-") as folder:  # read at start-up
                 secure_router = subprocess.Popen(secure_router_command(args, Path(folder)))
                 if not wait_for_router(
-                    secure_router, lambda: logs_in(host, port, BRIDGE_USER, password)
+                    secure_router, lambda: router_reachable(host, port, BRIDGE_USER, password)
                 ):
                     print(
                         f"scara-run: the secure router did not let {BRIDGE_USER} in on "

@@ -15,6 +15,7 @@ Network rules (``docs/design.md``): Zenoh only through the project's own configu
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -30,6 +31,7 @@ from typing import Any
 
 import can
 import pytest
+import zenoh
 
 from protocol.bus import enlarge_receive_buffer
 
@@ -358,3 +360,18 @@ def same_frame(a: can.Message, b: can.Message, *, timestamps: bool = True) -> bo
     its own receive time)."""
     delta = 0.0 if timestamps else None
     return a.equals(b, timestamp_delta=delta, check_channel=False, check_direction=False)
+
+
+def open_client(port: int, user: str | None = None, password: str | None = None) -> zenoh.Session:
+    """A plain Zenoh client session written here from Zenoh's own configuration keys (no
+    project code): multicast scouting off, one explicit ``tcp/127.0.0.1`` endpoint."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    config.insert_json5("listen/endpoints", "[]")
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "false")
+    if user is not None:
+        config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
+        config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+    return zenoh.open(config)

@@ -151,10 +151,16 @@ def build_zenoh_config(settings: dict[str, Any], base: str | None = None) -> zen
     return config
 
 
-def router_reachable(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> bool:
-    """True if a Zenoh router answers at ``host:port`` now (opens and closes a client)."""
+def router_reachable(
+    host: str = DEFAULT_HOST,
+    port: int = DEFAULT_PORT,
+    user: str | None = None,
+    password: str | None = None,
+) -> bool:
+    """True if a Zenoh router answers at ``host:port`` now (opens and closes a client), and
+    lets ``user`` in if one is given (a secure router refuses a session without one)."""
     try:
-        session = zenoh.open(build_zenoh_config(client_config(host, port)))
+        session = zenoh.open(build_zenoh_config(client_config(host, port, user, password)))
     except zenoh.ZError:
         return False
     try:

@@ -3,9 +3,8 @@ and bridge as real processes on CAN-over-Zenoh through the test's router on 127.
 on SocketCAN vcan0, the router then carrying only the bridge's keys).
 
 - :class:`Stack` holds them; :func:`start_router` starts a router and waits for it.
-- :func:`open_client` opens a plain Zenoh client session written here from Zenoh's own
-  configuration keys (no project code): multicast scouting off, one explicit
-  ``tcp/127.0.0.1`` endpoint. :func:`latest` and :func:`command` query through one.
+- :func:`latest` and :func:`command` query through a plain Zenoh client session
+  (``support.open_client``).
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from support import SLOWDOWN, Process, Processes, free_port, wait_until
+from support import SLOWDOWN, Process, Processes, free_port, open_client, wait_until
 
 from protocol.zenoh_can.config import router_reachable
 
@@ -95,19 +94,6 @@ def inside_obstacle(x: float, y: float) -> bool:
     return (u / (obstacle["long_diameter"] / 2)) ** 2 + (
         v / (obstacle["short_diameter"] / 2)
     ) ** 2 <= 1
-
-
-def open_client(port: int, user: str | None = None, password: str | None = None) -> zenoh.Session:
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    config.insert_json5("listen/endpoints", "[]")
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("scouting/gossip/enabled", "false")
-    if user is not None:
-        config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
-        config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
-    return zenoh.open(config)
 
 
 def latest(session: zenoh.Session, key: str, timeout: float = 2.0) -> dict[str, Any] | None:

@@ -22,7 +22,16 @@ from typing import Any
 
 import pytest
 import zenoh
-from support import ROOT, SIGINT_IGNORED, SLOWDOWN, Process, Processes, free_port, wait_until
+from support import (
+    ROOT,
+    SIGINT_IGNORED,
+    SLOWDOWN,
+    Process,
+    Processes,
+    free_port,
+    open_client,
+    wait_until,
+)
 
 from protocol.zenoh_can.config import router_reachable
 
@@ -36,19 +45,6 @@ DEMO = dict(
 )
 
 pytestmark = pytest.mark.timeout(240)
-
-
-def open_client(port: int, user: str | None, password: str | None) -> zenoh.Session:
-    config = zenoh.Config()
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    config.insert_json5("listen/endpoints", "[]")
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("scouting/gossip/enabled", "false")
-    if user is not None:
-        config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
-        config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
-    return zenoh.open(config)
 
 
 def logs_in(port: int, user: str, password: str) -> bool:
