@@ -27,6 +27,11 @@ class PathOutsideWorkspaceError(ConfigError):
     """A scenario's planned path between two reachable waypoints leaves the workspace."""
 
 
+class NoWayRoundError(ConfigError):
+    """A segment of a scenario crosses the obstacle and neither way round it stays inside the
+    arm's joint limits."""
+
+
 class KinematicsError(ScaraError, ValueError):
     """A pose cannot be reached by the arm."""
 

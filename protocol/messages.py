@@ -20,6 +20,7 @@ from typing import Any
 from protocol.codec import COUNTER_MODULO, WIRE, quantised
 from protocol.errors import (
     ConfigError,
+    NoWayRoundError,
     PathOutsideWorkspaceError,
     UnreachableWaypointError,
     WaypointInObstacleError,
@@ -65,6 +66,8 @@ def reason_of(error: ConfigError) -> Any:
         return Reason.INSIDE_OBSTACLE
     if isinstance(error, PathOutsideWorkspaceError):
         return Reason.PATH_LEAVES_WORKSPACE
+    if isinstance(error, NoWayRoundError):
+        return Reason.NO_WAY_ROUND
     return Reason.BAD_FIELD
 
 
