@@ -23,11 +23,13 @@ refused task written out, for instance).
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import sys
-from collections import deque
+from bisect import bisect_left, bisect_right
 from collections.abc import Sequence
 from enum import Enum
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -96,6 +98,7 @@ class FreeSpace:
             None if obstacle is None else obstacle.grown(scenario.controller.ao_pass_margin)
         )
         self.clearance = self._clearances()
+        self._plan = plan_of(scenario)
 
     def _clearances(self) -> Grid:
         """Each node's signed clearance from the grown section (inf: no obstacle). Exact only
@@ -129,19 +132,29 @@ class FreeSpace:
             joints = inverse(self.scenario.robot, point.x, point.y, point.z, self.scenario.elbow)
             ends.append((joints, clearance))
         nodes = [self._nearest(joints) for joints, _ in ends]
-        if not _connected(self.clearance >= -self.slack, nodes[0], nodes[1]):
+        if not self._near.connected(*nodes):
             return Verdict.NO_WAY
         joined = all(self._joins(j, c, n) for (j, c), n in zip(ends, nodes, strict=True))
-        if joined and _connected(self.clearance >= self.half_move, nodes[0], nodes[1]):
+        if joined and self._clear.connected(*nodes):
             return Verdict.WAY
         return Verdict.UNSURE
+
+    @cached_property
+    def _near(self) -> _Regions:
+        """The nodes that a clear pose may be near."""
+        return _Regions(self.clearance >= -self.slack)
+
+    @cached_property
+    def _clear(self) -> _Regions:
+        """The nodes between which every move stays clear."""
+        return _Regions(self.clearance >= self.half_move)
 
     def _blocks(self, segment: int) -> bool:
         """Whether the planned heights of the segment dip below the obstacle's inflated top."""
         obstacle = self.scenario.obstacle
         assert obstacle is not None
         start, end = (w.t for w in self.scenario.waypoints[segment : segment + 2])
-        heights = plan_of(self.scenario).sample(np.linspace(start, end, HEIGHT_SAMPLES))[0][:, 2]
+        heights = self._plan.sample(np.linspace(start, end, HEIGHT_SAMPLES))[0][:, 2]
         return bool(heights.min() < obstacle.height + obstacle.inflation)
 
     def _nearest(self, joints: tuple[float, float, float]) -> tuple[int, int]:
@@ -172,41 +185,53 @@ def _nearest_node(nodes: Grid, value: float) -> int:
     return int(np.clip(np.rint((value - nodes[0]) / (nodes[1] - nodes[0])), 0, len(nodes) - 1))
 
 
-def _connected(free: Mask, start: tuple[int, int], end: tuple[int, int]) -> bool:
-    """Whether ``start`` and ``end`` lie in one 4-connected region of ``free``: a flood fill
-    over the runs of free nodes along theta2, a few thousand runs instead of 10^5 nodes."""
-    if not (free[start] and free[end]):
-        return False
-    edges = np.diff(np.pad(free.astype(np.int8), ((0, 0), (1, 1))), axis=1)
-    rows, begins = np.nonzero(edges == 1)
-    ends = np.nonzero(edges == -1)[1]
-    first = np.searchsorted(rows, np.arange(len(free) + 1))  # row i: runs first[i] to first[i+1]
+class _Regions:
+    """The 4-connected regions of a grid's free nodes, found over the runs of free nodes along
+    each row: a few thousand runs rather than 10^5 nodes."""
 
-    def run_of(node: tuple[int, int]) -> int:
+    def __init__(self, free: Mask) -> None:
+        self.free = free
+        edges = np.diff(np.pad(free.astype(np.int8), ((0, 0), (1, 1))), axis=1)
+        rows, begins = np.nonzero(edges == 1)
+        ends = np.nonzero(edges == -1)[1]
+        first = np.searchsorted(rows, np.arange(len(free) + 1)).tolist()
+        spans = list(itertools.pairwise(first))
+        self.begins: list[list[int]] = [begins[low:high].tolist() for low, high in spans]
+        self.ends: list[list[int]] = [ends[low:high].tolist() for low, high in spans]
+        self.labels: list[list[int]] = [[-1] * len(row) for row in self.begins]
+        count = 0
+        for row, labels in enumerate(self.labels):
+            for run, label in enumerate(labels):
+                if label < 0:
+                    self._flood(row, run, count)
+                    count += 1
+
+    def _flood(self, row: int, run: int, label: int) -> None:
+        """Give ``label`` to the run and every run connected to it."""
+        self.labels[row][run] = label
+        stack = [(row, run)]
+        while stack:
+            row, run = stack.pop()
+            begin, end = self.begins[row][run], self.ends[row][run]
+            for other in (row - 1, row + 1):
+                if not 0 <= other < len(self.labels):
+                    continue
+                # The runs of the other row overlapping [begin, end).
+                head = bisect_right(self.ends[other], begin)
+                for neighbour in range(head, bisect_left(self.begins[other], end)):
+                    if self.labels[other][neighbour] < 0:
+                        self.labels[other][neighbour] = label
+                        stack.append((other, neighbour))
+
+    def connected(self, first: tuple[int, int], second: tuple[int, int]) -> bool:
+        """Whether both nodes are free and in one region."""
+        return bool(self.free[first] and self.free[second]) and self._label(first) == self._label(
+            second
+        )
+
+    def _label(self, node: tuple[int, int]) -> int:
         row, column = node
-        low, high = first[row], first[row + 1]
-        return int(low + np.searchsorted(begins[low:high], column, "right") - 1)
-
-    target = run_of(end)
-    seen = {run_of(start)}
-    queue = deque(seen)
-    while queue:
-        run = queue.popleft()
-        if run == target:
-            return True
-        row = rows[run]
-        for other in (row - 1, row + 1):
-            if not 0 <= other < len(free):
-                continue
-            low, high = first[other], first[other + 1]
-            # The runs of the other row overlapping [begins[run], ends[run]).
-            head = low + np.searchsorted(ends[low:high], begins[run], "right")
-            tail = low + np.searchsorted(begins[low:high], ends[run], "left")
-            for neighbour in range(int(head), int(tail)):
-                if neighbour not in seen:
-                    seen.add(neighbour)
-                    queue.append(neighbour)
-    return False
+        return self.labels[row][bisect_right(self.begins[row], column) - 1]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

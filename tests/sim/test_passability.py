@@ -16,7 +16,7 @@ from protocol.config import ControllerConfig
 from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow, reach_radii
 from protocol.scenario import Scenario, Waypoint, check_scenario
-from sim.passability import FreeSpace, Verdict, _connected, main, way_round
+from sim.passability import FreeSpace, Verdict, _Regions, main, way_round
 
 INFLATION = 0.02
 MARGIN = ControllerConfig().ao_pass_margin
@@ -107,10 +107,11 @@ def test_the_flood_fill_agrees_with_a_graph_search(seed: int) -> None:
     graph = nx.grid_2d_graph(*free.shape)
     graph.remove_nodes_from([node for node in list(graph) if not free[node]])
     nodes = list(itertools.product(range(free.shape[0]), range(free.shape[1])))
+    regions = _Regions(free)
     for first, second in rng.choice(len(nodes), (10, 2)):
         start, end = nodes[first], nodes[second]
         expected = start in graph and end in graph and nx.has_path(graph, start, end)
-        assert _connected(free, start, end) == expected
+        assert regions.connected(start, end) == expected
 
 
 def test_the_command_prints_each_segments_verdict(
