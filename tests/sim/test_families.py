@@ -23,6 +23,7 @@ from protocol.scenario import (
     scenario_document,
     task_document,
 )
+from sim.compare import main
 from sim.generator import (
     FAMILIES,
     HELD_OUT_SEEDS,
@@ -35,6 +36,7 @@ from sim.generator import (
     waypoints_clear,
 )
 from sim.passability import FreeSpace, Verdict
+from sim.study.jobs import generate_chunk
 
 NEW = [family for family in Family if family not in (Family.MIX, Family.HELD_OUT)]
 COUNT = 6
@@ -165,6 +167,12 @@ def test_the_held_out_part_is_refused_unless_asked_for() -> None:
         generate_scenario_at(0, 0, family=Family.HELD_OUT)
     with pytest.raises(ConfigError, match="held out"):
         generate_scenario_at(HELD_OUT_SEEDS, 0, family=Family.INNER)
+    with pytest.raises(ConfigError, match="held out"):
+        generate_chunk(HELD_OUT_SEEDS + 7, [0])
+    for argv in (["--family", "held_out"], ["--family", "user", "--seed", str(HELD_OUT_SEEDS)]):
+        with pytest.raises(SystemExit) as refused:
+            main([*argv, "-n", "1", "-q"])
+        assert refused.value.code == 2
 
 
 def test_the_held_out_part_generates_when_asked_for() -> None:
@@ -175,3 +183,10 @@ def test_the_held_out_part_generates_when_asked_for() -> None:
         scenario = generate_scenario_at(0, index, family=Family.HELD_OUT, held_out=True)
         check_plan(scenario)
         assert scenario.name.startswith("held_out-0-")
+
+
+def test_a_chunk_is_of_its_family() -> None:
+    assert generate_chunk(4, [1, 2], Family.MULTI) == [
+        (1, drawn(Family.MULTI)[1]),
+        (2, drawn(Family.MULTI)[2]),
+    ]
