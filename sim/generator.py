@@ -1,8 +1,9 @@
 """Random scenarios from a seed, for studies over thousands of runs.
 
-Scenario ``index`` of seed ``seed`` depends on those two numbers only (its own random stream,
-``numpy.random.default_rng([seed, index])``), so a study of 1,000 scenarios is the first
-1,000 of a study of 100,000 and any worker can rebuild any slice of it.
+Scenario ``index`` of seed ``seed`` (of a family) depends on those numbers only (its own
+random stream, ``numpy.random.default_rng([seed, index])`` for the mix and
+``[seed, index, n]`` for the family numbered ``n``), so a study of 1,000 scenarios is the
+first 1,000 of a study of 100,000 and any worker can rebuild any slice of it.
 
 Every scenario passes the checks a hand-written one does (:func:`check_scenario`, and the
 planned path by :func:`check_plan`), and the generator's own rules on top (a draw that breaks
@@ -96,9 +97,13 @@ class Family(Enum):
     MIX = "mix"
     """The seven cases the law was tuned on, in turn (the default; never changes)."""
     INNER = "inner"
+    """:attr:`Kind.INNER` only."""
     OUTER = "outer"
+    """:attr:`Kind.OUTER` only."""
     FAST = "fast"
+    """:attr:`Kind.FAST` only, its other segments at up to the fast speed too."""
     MULTI = "multi"
+    """:attr:`Kind.MULTI` only."""
     USER = "user"
     """Tasks as users of the paper's GUI wrote them: 3-6 waypoints, 0.08-0.35 m/s, the
     obstacle across a segment, at a doorstep or between two segments that double back."""
@@ -295,7 +300,7 @@ def generate_scenario(
 
 
 def case_of(scenario: Scenario) -> Case:
-    """The case of a generated scenario, from its name."""
+    """The case of a generated scenario of the mix, from its name."""
     return Case(scenario.name.rsplit("-", 1)[-1])
 
 
