@@ -81,10 +81,10 @@ class Kind(Enum):
     """What a scenario of the families beyond the mix is made to test (besides its cases)."""
 
     INNER = "inner"
-    """An obstacle across a segment, its inflated edge just outside the radius where theta2
-    meets its limit (:data:`LIMIT_BAND`): the way round on the base's side is closed."""
+    """An obstacle across a segment, its inflated edge near the radius where theta2 meets its
+    limit (:data:`LIMIT_BAND`): the way round on the base's side is narrow or closed."""
     OUTER = "outer"
-    """An obstacle across a segment, its inflated edge just inside the full reach."""
+    """An obstacle across a segment, its inflated edge near the full reach."""
     FAST = "fast"
     """The obstacle across a segment planned at :data:`FAST_SPEEDS`."""
     MULTI = "multi"
@@ -149,9 +149,10 @@ CRAWL_FRACTION = 0.1
 BISECTIONS = 40
 """Halvings of the distance an obstacle is moved to its place (0.5 m / 2^40: far below a
 micrometre)."""
-LIMIT_BAND = (0.0, 0.03)
-"""m: how far an obstacle near a reach limit has its inflated edge from that limit's radius
-(``protocol.kinematics.reach_radii``), towards the middle of the reach."""
+LIMIT_BAND = 0.03
+"""m: how far from a reach limit's radius (``protocol.kinematics.reach_radii``), either side,
+an obstacle near that limit has its inflated edge. Inside the limit is where users saw the
+arm fail: with the edge only outside it (0 to 30 mm), 200 such tasks never did."""
 FAST_SPEEDS = (0.35, 0.40)
 """m/s: the planned mean speed of the fast kind's segment across the obstacle."""
 USER_SPEEDS = (0.08, 0.35)
@@ -549,15 +550,15 @@ def _draw_below(rng: np.random.Generator, robot: RobotConfig, recipe: Recipe) ->
 
 def _draw_near_limit(rng: np.random.Generator, robot: RobotConfig, recipe: Recipe) -> Draw:
     """An obstacle whose inflated edge is within LIMIT_BAND of the inner or the outer reach
-    limit, and a segment across it running round the base (within 0.5 rad)."""
+    limit's radius, and a segment across it running round the base (within 0.5 rad)."""
     low, high = reach_radii(robot)
     angle = rng.uniform(-ANGLE_RANGE, ANGLE_RANGE)
     probe = _obstacle(rng, 0.0, 0.0, recipe)
-    gap = rng.uniform(*LIMIT_BAND)
+    gap = rng.uniform(-LIMIT_BAND, LIMIT_BAND)
     if recipe.case is Kind.INNER:
         obstacle = _placed(probe, 0.0, 0.0, angle, lambda o: o.clearance(0.0, 0.0), low + gap)
     else:
-        obstacle = _placed(probe, 0.0, 0.0, angle, _farthest, high - gap, far=high)
+        obstacle = _placed(probe, 0.0, 0.0, angle, _farthest, high - gap, far=2.0 * high)
     heading = angle + math.pi / 2.0 + rng.uniform(-0.5, 0.5)
     return Draw(_around(rng, robot, recipe, _through(rng, obstacle, heading)), obstacle)
 
@@ -680,10 +681,9 @@ def _tests_its_kind(scenario: Scenario, obstacle: EllipticCylinder, recipe: Reci
     """What the recipe is made to test holds of the scenario as written (rounding to a tenth
     of a millimetre and to whole milliseconds may have moved it)."""
     low, high = reach_radii(scenario.robot)
-    band = LIMIT_BAND
-    if recipe.case is Kind.INNER and not band[0] <= obstacle.clearance(0.0, 0.0) - low <= band[1]:
+    if recipe.case is Kind.INNER and abs(obstacle.clearance(0.0, 0.0) - low) > LIMIT_BAND:
         return False
-    if recipe.case is Kind.OUTER and not band[0] <= high - _farthest(obstacle) <= band[1]:
+    if recipe.case is Kind.OUTER and abs(high - _farthest(obstacle)) > LIMIT_BAND:
         return False
     pairs = list(itertools.pairwise(scenario.waypoints))
     if recipe.fast_speeds is not None:
