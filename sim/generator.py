@@ -181,6 +181,7 @@ class Recipe:
     """A kind of scenario and the numbers it is drawn with (by default the mix's)."""
 
     case: Case | Kind
+    """What it draws (:data:`_DRAWS`) and names its scenarios by."""
     waypoints: tuple[int, int] = (2, 6)
     """The least and most waypoints, where the kind does not fix their number."""
     speeds: tuple[float, float] = SPEED_RANGE
@@ -190,6 +191,7 @@ class Recipe:
     settle_time: float | None = SETTLE_TIME
     """s; None: the scenario file's default."""
     diameters: tuple[float, float] = DIAMETER_RANGE
+    """m: the range of the obstacle's long diameter."""
     way_round: bool = False
     """The rule an obstacle in the way keeps: room all round it (:data:`PASSAGE`), or, for
     obstacles near a limit, a way round it on every segment (:mod:`sim.passability`)."""
