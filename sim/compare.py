@@ -6,6 +6,8 @@ of worker processes, or over a Dask cluster with ``--scheduler``. Prints a table
 modes side by side, and writes every run's measures as CSV, a figure of their distributions
 and the worst case of each mode drawn like the paper's Figs. 8 and 9 (re-run in the scalar
 simulation for its log). ``--sweep`` repeats the study for other gains or fuzzy rule bases.
+``--family`` picks the scenarios (the tuned-on mix by default); the held-out part is refused
+unless ``--held-out`` is given, so that nobody tunes on it by accident.
 
 This module is the command line only; the study's jobs are the modules of :mod:`sim.study`.
 """
@@ -25,6 +27,7 @@ from tqdm import tqdm
 from protocol.cli import add_verbosity, configure_logging, interruptible, quiet_on_closed_pipe
 from protocol.errors import ConfigError
 from protocol.scenario import Mode, Scenario
+from sim.generator import HELD_OUT_SEEDS, Family, is_held_out
 from sim.study.jobs import (
     DEFAULT_BATCH,
     GENERATE_CHUNK,
@@ -64,6 +67,21 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"scenarios (default {DEFAULT_COUNT})",
     )
     parser.add_argument("--seed", type=int, default=0, help="the generator's seed (default 0)")
+    parser.add_argument(
+        "--family",
+        choices=[family.value for family in Family],
+        default=Family.MIX.value,
+        metavar="NAME",
+        help="which scenarios: mix (the seven cases the law was tuned on, the default), inner "
+        "or outer (an obstacle at a reach limit), fast (a detour at up to 0.4 m/s), multi "
+        "(several detours in one task), user (tasks as users wrote them), held_out",
+    )
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help=f"allow the held-out part (family held_out, or a seed from {HELD_OUT_SEEDS}): "
+        "only to judge the law once it is tuned, never to tune it",
+    )
     parser.add_argument(
         "--out",
         type=Path,
@@ -119,6 +137,12 @@ def _main(argv: Sequence[str] | None) -> int:
     ):
         if value < least:
             parser.error(f"{flag} must be at least {least}, got {value}")
+    family = Family(args.family)
+    if is_held_out(family, args.seed) and not args.held_out:
+        parser.error(
+            f"family {family.value} with seed {args.seed} is held out for judging the tuned "
+            "law; give --held-out to run it"
+        )
     variants = [BASELINE]
     for text in args.sweep:
         try:
@@ -135,17 +159,21 @@ def _main(argv: Sequence[str] | None) -> int:
             Cluster(args.scheduler) if args.scheduler else Processes(args.workers, bar.update)
         )
         indices = list(range(args.count))
-        chunks = [(args.seed, indices[i : i + GENERATE_CHUNK]) for i in indices[::GENERATE_CHUNK]]
+        chunks = [
+            (args.seed, indices[i : i + GENERATE_CHUNK], family, args.held_out)
+            for i in indices[::GENERATE_CHUNK]
+        ]
         generated: dict[int, Scenario] = {}
         for chunk in executor.map(generate_chunk, chunks):
             generated.update(chunk)
             bar.update(len(chunk))
         bar.close()
         log.info(
-            "generated %d scenarios of seed %d in %.1f s",
+            "generated %d scenarios of seed %d in %.1f s (family %s)",
             args.count,
             args.seed,
             time.perf_counter() - started,
+            family.value,
         )
         scenarios = [generated[index] for index in indices]
         jobs = plan_jobs(scenarios, variants, args.batch, args.workers)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 from controller.fuzzy import RuleBase
 from protocol.scenario import Mode, Scenario
 from sim.batch import BatchRun, simulate_batch
-from sim.generator import generate_scenario_at
+from sim.generator import Family, generate_scenario_at
 from sim.study.pool import progress_reporter
 from sim.study.variants import Variant
 
@@ -50,9 +50,15 @@ class Outcome:
     run: BatchRun
 
 
-def generate_chunk(seed: int, indices: Sequence[int]) -> list[tuple[int, Scenario]]:
-    """Scenarios ``indices`` of the study ``seed`` (each depends on its index only)."""
-    return [(index, generate_scenario_at(seed, index)) for index in indices]
+def generate_chunk(
+    seed: int, indices: Sequence[int], family: Family = Family.MIX, held_out: bool = False
+) -> list[tuple[int, Scenario]]:
+    """Scenarios ``indices`` of ``family``'s study ``seed`` (each depends on its index only;
+    a held-out one only with ``held_out``)."""
+    return [
+        (index, generate_scenario_at(seed, index, family=family, held_out=held_out))
+        for index in indices
+    ]
 
 
 def run_job(job: Job) -> list[Outcome]:
