@@ -25,7 +25,7 @@ from typing import Any
 from tqdm import tqdm
 
 from protocol.cli import add_verbosity, configure_logging, interruptible, quiet_on_closed_pipe
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, NoWayRoundError
 from protocol.scenario import Mode, Scenario
 from sim.generator import HELD_OUT_SEEDS, Family, is_held_out
 from sim.study.jobs import (
@@ -38,6 +38,7 @@ from sim.study.jobs import (
     run_ticks,
 )
 from sim.study.pool import Cluster, Processes
+from sim.study.refusals import DEFAULT_CHECKED, refusal_report
 from sim.study.results import (
     compare_jerk,
     format_summary,
@@ -109,6 +110,14 @@ def build_parser() -> argparse.ArgumentParser:
         "fuzzy input term (min_distance.near=0:0:0.02:0.05, a:b:c:d) or of the output peaks "
         "(k_C.peaks=0.1:0.5:0.9); repeatable",
     )
+    parser.add_argument(
+        "--check-refused",
+        type=int,
+        default=DEFAULT_CHECKED,
+        metavar="N",
+        help="check N of the tasks the controller refuses (no way round the obstacle) by "
+        f"brute force: a dense search for a way it missed (default {DEFAULT_CHECKED})",
+    )
     parser.add_argument("--no-figure", action="store_true", help="skip the figures")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_verbosity(parser)
@@ -164,8 +173,13 @@ def _main(argv: Sequence[str] | None) -> int:
             for i in indices[::GENERATE_CHUNK]
         ]
         generated: dict[int, Scenario] = {}
+        refused: list[tuple[Scenario, NoWayRoundError]] = []
         for chunk in executor.map(generate_chunk, chunks):
-            generated.update(chunk)
+            for index, scenario, refusal in chunk:
+                if refusal is None:
+                    generated[index] = scenario
+                else:
+                    refused.append((scenario, refusal))
             bar.update(len(chunk))
         bar.close()
         log.info(
@@ -175,7 +189,10 @@ def _main(argv: Sequence[str] | None) -> int:
             time.perf_counter() - started,
             family.value,
         )
-        scenarios = [generated[index] for index in indices]
+        scenarios = [generated[index] for index in indices if index in generated]
+        print(refusal_report(args.count, refused, args.check_refused))
+        if not scenarios:
+            return 0
         jobs = plan_jobs(scenarios, variants, args.batch, args.workers)
         total = sum(run_ticks(scenario) for job in jobs for scenario in job.scenarios)
         log.info(

@@ -6,8 +6,10 @@ random stream, ``numpy.random.default_rng([seed, index])`` for the mix and
 first 1,000 of a study of 100,000 and any worker can rebuild any slice of it.
 
 Every scenario passes the checks a hand-written one does (:func:`check_scenario`, and the
-planned path by :func:`check_plan`), and the generator's own rules on top (a draw that breaks
-one is drawn again from the same stream):
+planned path by :func:`check_plan`), except that a task with no way round its obstacle
+(``NoWayRoundError``) is kept, as a user would offer it: the controller refuses it, and the
+study counts the refusals. On top come the generator's own rules (a draw that breaks one is
+drawn again from the same stream):
 
 - **waypoints kept clear** (the study's condition for "every waypoint passed within 2 mm"):
   every waypoint below the obstacle's top is at least :data:`WAYPOINT_CLEARANCE` clear of
@@ -24,10 +26,11 @@ scenarios; its scenarios never change (the study's history is measured on them).
 families (:class:`Family`) each test one thing the mix leaves out, drawn from their own
 streams with their own numbers (:class:`Recipe`), and run for the scenario file's default
 settling time. An obstacle near a reach limit cannot have room all round, so families that
-place one keep a weaker rule instead: every segment has a way round it
-(:mod:`sim.passability`). :attr:`Family.HELD_OUT`, and seeds from :data:`HELD_OUT_SEEDS` on
-of every family, are set aside for judging the law once it is tuned: they are generated only
-when asked for by name (``held_out=True``).
+place one drop that rule: whether a way round is left, the controller's plan check says
+(and :mod:`sim.passability`'s brute force checks a sample of its refusals).
+:attr:`Family.HELD_OUT`, and seeds from :data:`HELD_OUT_SEEDS` on of every family, are set
+aside for judging the law once it is tuned: they are generated only when asked for by name
+(``held_out=True``).
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ import numpy as np
 
 from controller.planner import check_plan, plan_of
 from protocol.config import RobotConfig
-from protocol.errors import ConfigError, KinematicsError, ScaraError
+from protocol.errors import ConfigError, KinematicsError, NoWayRoundError, ScaraError
 from protocol.geometry import EllipticCylinder, to_world
 from protocol.kinematics import Elbow, inverse, reach_radii
 from protocol.scenario import (
@@ -55,7 +58,6 @@ from protocol.scenario import (
     check_scenario,
 )
 from sim.measures import STOP_REST_MARGIN, STOP_SPEED_FRACTION, stop_threshold_and_rests
-from sim.passability import FreeSpace, Verdict
 
 
 class Case(Enum):
@@ -192,19 +194,19 @@ class Recipe:
     """s; None: the scenario file's default."""
     diameters: tuple[float, float] = DIAMETER_RANGE
     """m: the range of the obstacle's long diameter."""
-    way_round: bool = False
-    """The rule an obstacle in the way keeps: room all round it (:data:`PASSAGE`), or, for
-    obstacles near a limit, a way round it on every segment (:mod:`sim.passability`)."""
+    near_limit: bool = False
+    """An obstacle in the way has room all round it (:data:`PASSAGE`), unless it is placed
+    near a reach limit (where the plan check decides whether a way round is left)."""
 
 
-_INNER = Recipe(Kind.INNER, settle_time=None, way_round=True)
+_INNER = Recipe(Kind.INNER, settle_time=None, near_limit=True)
 _OUTER = replace(_INNER, case=Kind.OUTER)
 _FAST = Recipe(
     Kind.FAST, speeds=(SPEED_RANGE[0], FAST_SPEEDS[1]), fast_speeds=FAST_SPEEDS, settle_time=None
 )
 _MULTI = Recipe(Kind.MULTI, settle_time=None)
 _USER = tuple(
-    Recipe(case, waypoints=(3, 6), speeds=USER_SPEEDS, settle_time=None, way_round=True)
+    Recipe(case, waypoints=(3, 6), speeds=USER_SPEEDS, settle_time=None, near_limit=True)
     for case in (Case.ACROSS, Case.DOORSTEP, Case.BACK_ACROSS)
 )
 FAMILIES: dict[Family, tuple[Recipe, ...]] = {
@@ -635,6 +637,8 @@ def _timed_scenario(
     try:
         check_scenario(scenario)
         check_plan(scenario)
+    except NoWayRoundError:
+        pass  # offered as a user would: the controller refuses it, and the study counts that
     except ConfigError:
         return None
     return scenario if _fits_the_rules(scenario, obstacle, recipe) else None
@@ -666,9 +670,8 @@ def _fits_the_rules(scenario: Scenario, obstacle: EllipticCylinder, recipe: Reci
         return True  # the path passes over it
     if heights.max() > top - HEIGHT_GAP or not waypoints_clear(scenario):
         return False
-    if recipe.way_round:
-        space = FreeSpace(scenario)
-        return all(space.verdict(i) is Verdict.WAY for i in range(len(scenario.waypoints) - 1))
+    if recipe.near_limit:
+        return True
     a, b = obstacle.semi_axes
     for angle in np.linspace(0.0, 2.0 * math.pi, 36, endpoint=False):
         x, y = obstacle.to_world((a + PASSAGE) * math.cos(angle), (b + PASSAGE) * math.sin(angle))

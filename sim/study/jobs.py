@@ -10,6 +10,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from controller.fuzzy import RuleBase
+from controller.planner import check_plan
+from protocol.errors import NoWayRoundError
 from protocol.scenario import Mode, Scenario
 from sim.batch import BatchRun, simulate_batch
 from sim.generator import Family, generate_scenario_at
@@ -52,13 +54,26 @@ class Outcome:
 
 def generate_chunk(
     seed: int, indices: Sequence[int], family: Family = Family.MIX, held_out: bool = False
-) -> list[tuple[int, Scenario]]:
+) -> list[tuple[int, Scenario, NoWayRoundError | None]]:
     """Scenarios ``indices`` of ``family``'s study ``seed`` (each depends on its index only;
-    a held-out one only with ``held_out``)."""
+    a held-out one only with ``held_out``), each with the controller's refusal if it refuses
+    it (no way round the obstacle: the generator offers such tasks as a user would)."""
     return [
-        (index, generate_scenario_at(seed, index, family=family, held_out=held_out))
-        for index in indices
+        (index, scenario, refusal(scenario))
+        for index, scenario in (
+            (index, generate_scenario_at(seed, index, family=family, held_out=held_out))
+            for index in indices
+        )
     ]
+
+
+def refusal(scenario: Scenario) -> NoWayRoundError | None:
+    """The plan check's refusal of ``scenario`` for want of a way round, if it refuses it."""
+    try:
+        check_plan(scenario)
+    except NoWayRoundError as error:
+        return error
+    return None
 
 
 def run_job(job: Job) -> list[Outcome]:

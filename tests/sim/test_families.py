@@ -187,6 +187,6 @@ def test_the_held_out_part_generates_when_asked_for() -> None:
 
 def test_a_chunk_is_of_its_family() -> None:
     assert generate_chunk(4, [1, 2], Family.MULTI) == [
-        (1, drawn(Family.MULTI)[1]),
-        (2, drawn(Family.MULTI)[2]),
+        (1, drawn(Family.MULTI)[1], None),
+        (2, drawn(Family.MULTI)[2], None),
     ]
