@@ -163,6 +163,11 @@ class ControllerNode(Node):
         self.plant = PlantSeen()
         self._round_trip = LOCKSTEP_RETRY / 2.0
         """s from a lockstep command to its answer, smoothed (the first retry waits twice)."""
+        self._commands: list[int] = []
+        """Lockstep: the counter the plant echoed at the start, then the counter of each
+        command sent, in order (see :meth:`_answers`)."""
+        self._echoed = 0
+        """Lockstep: the command (index in ``_commands``) the last answer echoed, at least."""
         self.ticks_to_run = self.tick = self.slot = 0  # no run prepared yet
         self._next_waypoint = self._approach = 0
         self._last_output: ControlOutput | None = None
@@ -424,6 +429,12 @@ class ControllerNode(Node):
         state = self._exchange(0, None, give_up=started + startup_timeout)
         if state is None:
             return
+        # Number the commands on from the counter the plant echoes now (0 from a new plant):
+        # the first is then not that counter, which late answers to the start's StepSyncs echo.
+        while self.next_counter(COMMAND) != state.echo:
+            pass
+        self._commands = [state.echo]
+        self._echoed = 0
         self.node_state = NodeState.RUNNING
         while self.running and not self.finished:
             if self.node_state is not NodeState.RUNNING or (
@@ -452,13 +463,14 @@ class ControllerNode(Node):
         same values under new counters), each wait longer (see LOCKSTEP_RETRY), until ``give_up``.
         ``rates`` None: StepSync alone, which the plant answers without stepping (the start).
 
-        An answer echoing any of the commands sent for this tick is taken: they all carry the
-        same rates, and the plant steps once per tick whichever of them it stepped under.
-        Waiting only for the latest would never end on a host whose round trip is longer
-        than the wait: each answer would arrive just after the next retry made it old.
+        An answer to any of the commands sent for this tick is taken: they all carry the same
+        rates, and the plant steps once per tick whichever of them it stepped under. Waiting
+        only for the latest would never end on a host whose round trip is longer than the
+        wait: each answer would arrive just after the next retry made it old. Which command an
+        answer is to, its echo tells together with the order of the answers (:meth:`_answers`).
         """
         self.state = None
-        sent: set[int] = set()
+        first = len(self._commands)
         wait = min(max(LOCKSTEP_RETRY, 2.0 * self._round_trip), LOCKSTEP_RETRY_MAX)
         first_sent = self.clock()
         while self.running:
@@ -466,7 +478,7 @@ class ControllerNode(Node):
             command = 0
             if rates is not None:
                 command = self.next_counter(COMMAND)
-                sent.add(command)
+                self._commands.append(command)
                 frames.append((COMMAND, command_record(rates), command))
             step = STEP.Record(CommandCounter=command, Tick=tick)
             frames.append((STEP, step, self.next_counter(STEP)))
@@ -482,9 +494,10 @@ class ControllerNode(Node):
             while True:  # read what came at least once, even after a stall of this process
                 self.drain(timeout=max(0.0, resend - self.clock()))
                 state = self.state
-                if state is not None and (rates is None or state.echo in sent):
+                if state is not None and (rates is None or self._answers(state.echo, first)):
                     self._round_trip += 0.1 * (self.clock() - first_sent - self._round_trip)
                     return state
+                self.state = None
                 if self.clock() >= resend:
                     break
             if self.clock() >= give_up:
@@ -492,6 +505,25 @@ class ControllerNode(Node):
             if rates is not None:
                 self.stats.lockstep_retries += 1
         return None
+
+    def _answers(self, echo: int, first: int) -> bool:
+        """Whether a joint state echoing the command counter ``echo`` answers this tick, whose
+        first command is ``_commands[first]``.
+
+        The plant takes frames in the order they were sent and echoes the last command it
+        took, so an answer echoes a command at or after the one the previous answer echoed:
+        the first such command with this counter, if it is one of this tick's, makes the answer
+        this tick's. If it is an earlier one, the answer may be a late one to an earlier tick
+        (the plant answers a StepSync repeated after it had answered; at the start, before any
+        command, it echoes 0, the counter of a first command numbered from 0). The counter
+        alone would take such an answer for this tick's: counters repeat every 16 commands,
+        and a tick retried for long reuses them all.
+        """
+        for index in range(self._echoed, len(self._commands)):
+            if self._commands[index] == echo:
+                self._echoed = index
+                return index >= first
+        return False  # none of this run's commands since: not an answer to them
 
     # --- results ---------------------------------------------------------------------------------
 
