@@ -27,6 +27,7 @@ EmergencyStop latches e-stop until a reset.
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -79,13 +80,37 @@ flooded with retries, and a lossy bus still gets many tries before LOCKSTEP_GIVE
 LOCKSTEP_RETRY_MAX = 0.1
 """s: the longest wait between two sends of the same lockstep tick."""
 LOCKSTEP_GIVE_UP = 1.0
-"""s without any answer in lockstep before the controller faults (the plant is gone)."""
+"""s without any answer in lockstep before the controller faults (the plant is gone), unless
+the environment variable named by GIVE_UP_VARIABLE sets another. Lockstep stays exact however
+long an answer takes, but a plant that answers later than this is taken for a gone one: a host
+that can stall the nodes for longer needs a longer bound (in the hil tier's emulated VM, on a
+loaded host, the whole guest stopped for 1.25 s and a run faulted, docs/hil.md)."""
+LOCKSTEP_STARTUP = 30.0
+"""s the controller waits in lockstep for the plant's first answer (it may start before the
+plant), unless the environment variable named by STARTUP_VARIABLE sets another."""
+GIVE_UP_VARIABLE = "SCARA_LOCKSTEP_GIVE_UP"
+STARTUP_VARIABLE = "SCARA_LOCKSTEP_STARTUP"
 ZERO: Joints = (0.0, 0.0, 0.0)
 _D_MAX = 0.255
 """m: d_L and d_R saturate here on the wire (sensing range 0.2 m by default)."""
 _SIDES = {0: Side.NONE, TURN_LEFT: Side.LEFT, TURN_RIGHT: Side.RIGHT}
 PREALLOCATED_ROWS = 65536
 """Log rows reserved up front (a longer run's log grows)."""
+
+
+def lockstep_wait(variable: str, default: float) -> float:
+    """s: the environment variable ``variable``'s value if set, else ``default``; a value that
+    is not a positive number of seconds is a :class:`ConfigError` naming the variable."""
+    text = os.environ.get(variable, "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise ConfigError(variable, f"{text!r} is not a positive number of seconds")
+    return value
 
 
 @dataclass(slots=True)
@@ -146,6 +171,11 @@ class ControllerNode(Node):
         self.scenario = scenario
         self.clock_mode = clock_mode
         self.comms_timeout = comms_timeout
+        self.lockstep_give_up = LOCKSTEP_GIVE_UP
+        self.lockstep_startup = LOCKSTEP_STARTUP
+        if clock_mode is ClockMode.LOCKSTEP:  # read here: a bad value stops the start, named
+            self.lockstep_give_up = lockstep_wait(GIVE_UP_VARIABLE, LOCKSTEP_GIVE_UP)
+            self.lockstep_startup = lockstep_wait(STARTUP_VARIABLE, LOCKSTEP_STARTUP)
         self.sleep = sleep
         self.wall_clock = wall_clock
         self.stats = LoopStats(self.period)
@@ -416,14 +446,23 @@ class ControllerNode(Node):
     # --- lockstep --------------------------------------------------------------------------------
 
     def run_lockstep(
-        self, startup_timeout: float = 30.0, max_wall_time: float | None = None
+        self,
+        startup_timeout: float | None = None,
+        max_wall_time: float | None = None,
+        give_up: float | None = None,
     ) -> None:
         """Step the plant tick by tick; a lost answer is asked for again.
 
-        If no answer comes for LOCKSTEP_GIVE_UP the plant is taken as gone: the controller
-        sends zero with Enable = 0, goes to fault and returns. A fault, an e-stop or a reset
+        If no answer comes for ``give_up`` s (default: ``lockstep_give_up``, LOCKSTEP_GIVE_UP
+        or its environment variable's) the plant is taken as gone: the controller sends zero
+        with Enable = 0, goes to fault and returns; the plant's first answer may take
+        ``startup_timeout`` s (default: ``lockstep_startup``). A fault, an e-stop or a reset
         received meanwhile also ends the run (zero sent).
         """
+        if startup_timeout is None:
+            startup_timeout = self.lockstep_startup
+        if give_up is None:
+            give_up = self.lockstep_give_up
         started = self.clock()
         self.send_status_if_due(started)  # ready, until the plant answers
         state = self._exchange(0, None, give_up=started + startup_timeout)
@@ -444,7 +483,7 @@ class ControllerNode(Node):
                 return
             output = self._control(state)
             self.slot += 1
-            answer = self._exchange(self.tick, output.command, self.clock() + LOCKSTEP_GIVE_UP)
+            answer = self._exchange(self.tick, output.command, self.clock() + give_up)
             if answer is None:
                 if self.running and self.node_state is NodeState.RUNNING:
                     self.enter_fault(ControllerFault.STALE_STATE)

@@ -79,7 +79,6 @@ def plant(
     from the test's ``plant`` parameter, if any)."""
     give_up, retry_max = getattr(request, "param", (60.0, LOCKSTEP_RETRY_MAX))
     monkeypatch.setattr("controller.node.LOCKSTEP_RETRY_MAX", retry_max)
-    monkeypatch.setattr("controller.node.LOCKSTEP_GIVE_UP", give_up * SLOWDOWN)
     scenario = load_scenario("reference")
     channel = f"lockstep-answers-{id(scenario)}"
     controller_bus = can.Bus(interface="virtual", channel=channel)
@@ -87,7 +86,7 @@ def plant(
     controller = ControllerNode(controller_bus, scenario, ClockMode.LOCKSTEP)
     thread = threading.Thread(
         target=controller.run_lockstep,
-        kwargs={"startup_timeout": WAIT * SLOWDOWN},
+        kwargs={"startup_timeout": WAIT * SLOWDOWN, "give_up": give_up * SLOWDOWN},
         daemon=True,
     )
     thread.start()
