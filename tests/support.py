@@ -8,6 +8,7 @@
 - :func:`wait_until`: a bounded wait for a condition.
 - :func:`hil_marks`: the marks of a test on SocketCAN ``vcan0`` (the ``hil`` tier).
 - :func:`stretch_lockstep_waits`: the product's lockstep waits stretched by SLOWDOWN.
+- :func:`wait_while_growing`: a wait that fails only once progress has stopped.
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -132,6 +133,21 @@ def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(0.005)
+
+
+def wait_while_growing(size: Callable[[], int], target: int, quiet: float, what: str) -> None:
+    """Poll ``size()`` until it reaches ``target``; fail naming ``what`` once it has not grown
+    for ``quiet`` s (times SLOWDOWN): for a wait whose length depends on how far behind the
+    waited-for process is, not only on how slow the machine is."""
+    quiet *= SLOWDOWN
+    last, since = size(), time.monotonic()
+    while last < target:
+        time.sleep(0.05)
+        now = size()
+        if now > last:
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since > quiet:
+            raise AssertionError(f"{what}: {last} of {target}, no progress for {quiet} s")
 
 
 @dataclass(frozen=True)
