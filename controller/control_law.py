@@ -25,7 +25,7 @@ from controller.behaviours import PLANNED_REST_SPEED, Command, avoid_obstacle, p
 from controller.coordination import Coordination, smoothstep, weights
 from controller.obstacle import NO_OBSTACLE, ObstacleMeasurement, sense
 from controller.planner import Trajectory, cubic, plan_of
-from controller.safety import barrier, box, filtered
+from controller.safety import Limits, barrier, box, filtered, limits_of
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.geometry import EllipticCylinder, Section, distance, length, wrap_angle
 from protocol.kinematics import arm_trig, joint_rates, reach_radii, tool_position
@@ -153,6 +153,8 @@ class Law(NamedTuple):
     speed_limits: tuple[float, float, float]
     step_limits: tuple[float, float, float]
     """The most a joint's command may change in one tick."""
+    limits: Limits
+    """The safety filter's box (:func:`controller.safety.limits_of`)."""
 
 
 class LawState(NamedTuple):
@@ -217,6 +219,7 @@ def law_of(
             robot.accel_limits[1] * config.period,
             robot.accel_limits[2] * config.period,
         ),
+        limits_of(robot, config),
     )
 
 
@@ -400,7 +403,7 @@ def step(
     command, no_safe_motion = filtered(
         ops,
         wanted,
-        box(ops, law.robot, config, law.step_limits, joints, state.previous),
+        box(ops, law.limits, joints, state.previous),
         barrier(ops, law.robot, config, law.obstacle, trig, tcp, measurement),
     )
     limited = limited | (command[0] != wanted[0]) | (command[1] != wanted[1])

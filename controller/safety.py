@@ -73,30 +73,61 @@ class Filtered(NamedTuple):
     no_safe_motion: Mask
 
 
-def box(
-    ops: Ops,
-    robot: RobotConfig,
-    config: ControllerConfig,
-    step_limits: Point3,
-    joints: Point3,
-    previous: Point3,
-) -> Box:
+class Limits(NamedTuple):
+    """The box's fixed numbers, per joint (:func:`limits_of`)."""
+
+    speed: Point3
+    step: Point3
+    """The most a joint's command may change in one tick."""
+    decel: Point3
+    """What the approach to a stop counts on to brake with."""
+    far: Point3
+    """Farther from a stop than this, the approach to it allows more than the speed limit."""
+    low: Point3
+    """The points the approach to each stop aims at."""
+    high: Point3
+    rate: float
+    lag: float
+
+
+def limits_of(robot: RobotConfig, config: ControllerConfig) -> Limits:
+    """The box's numbers for ``robot`` under ``config``."""
+    speed = tuple(SLACK * limit for limit in robot.speed_limits)
+    step = tuple(SLACK * limit * config.period for limit in robot.accel_limits)
+    decel = tuple(BRAKING * limit for limit in robot.accel_limits)
+    rate, lag = config.limit_rate, config.drive_lag
+    far = tuple(max(v / rate, v * lag + v * v / d) for v, d in zip(speed, decel, strict=True))
+    low = tuple(stop + margin for stop, margin in zip(robot.joint_min, STOP_MARGIN, strict=True))
+    high = tuple(stop - margin for stop, margin in zip(robot.joint_max, STOP_MARGIN, strict=True))
+    return Limits(
+        (speed[0], speed[1], speed[2]),
+        (step[0], step[1], step[2]),
+        (decel[0], decel[1], decel[2]),
+        (far[0], far[1], far[2]),
+        (low[0], low[1], low[2]),
+        (high[0], high[1], high[2]),
+        rate,
+        lag,
+    )
+
+
+def box(ops: Ops, limits: Limits, joints: Point3, previous: Point3) -> Box:
     """The rates allowed: speed and acceleration limits first (the drives cannot do more),
     then the approach to the joint stops (:func:`approach_speed`), as far as those leave room
     for it."""
-    limit_rate, lag = config.limit_rate, config.drive_lag
     low: list[Real] = []
     high: list[Real] = []
+    rate, lag = limits.rate, limits.lag
     for joint in range(3):
-        speed, step = SLACK * robot.speed_limits[joint], SLACK * step_limits[joint]
-        low_dynamic = ops.max(-speed, previous[joint] - step)
-        high_dynamic = ops.min(speed, previous[joint] + step)
-        decel = BRAKING * robot.accel_limits[joint]
-        low_stop = -approach_speed(
-            ops, joints[joint] - robot.joint_min[joint] - STOP_MARGIN[joint], limit_rate, decel, lag
-        )
-        high_stop = approach_speed(
-            ops, robot.joint_max[joint] - STOP_MARGIN[joint] - joints[joint], limit_rate, decel, lag
+        speed, step, last = limits.speed[joint], limits.step[joint], previous[joint]
+        low_dynamic = ops.max(-speed, last - step)
+        high_dynamic = ops.min(speed, last + step)
+        far, decel = limits.far[joint], limits.decel[joint]
+        low_way = joints[joint] - limits.low[joint]
+        high_way = limits.high[joint] - joints[joint]
+        low_stop = -ops.branch(low_way < far, approach_speed, speed, ops, low_way, rate, decel, lag)
+        high_stop = ops.branch(
+            high_way < far, approach_speed, speed, ops, high_way, rate, decel, lag
         )
         low.append(ops.min(ops.max(low_dynamic, low_stop), high_dynamic))
         high.append(ops.max(ops.min(high_dynamic, high_stop), low_dynamic))
@@ -137,14 +168,38 @@ def barrier(
     unmeasured = (
         ops.not_(measurement.present) & (pz >= section.top) & (dx * dx + dy * dy < reach * reach)
     )
+    # Beyond the sensing range the clearance allows more than any speed: no barrier.
+    return ops.branch(
+        measurement.present | unmeasured,
+        _near_barrier,
+        Barrier((0.0, 0.0, 0.0), -math.inf),
+        ops,
+        robot,
+        config,
+        section,
+        trig,
+        tcp,
+        measurement,
+        unmeasured,
+    )
+
+
+def _near_barrier(
+    ops: Ops,
+    robot: RobotConfig,
+    config: ControllerConfig,
+    section: Section,
+    trig: ArmTrig,
+    tcp: Point3,
+    measurement: ObstacleMeasurement,
+    unmeasured: Mask,
+) -> Barrier:
+    """:func:`barrier` within the sensing range of the obstacle."""
+    px, py, pz = tcp
     clearance, to_x, to_y = ops.branch(
         unmeasured,
         _plane_clearance,
-        (
-            ops.where(measurement.present, measurement.clearance, math.inf),
-            measurement.to_nearest[0],
-            measurement.to_nearest[1],
-        ),
+        (measurement.clearance, measurement.to_nearest[0], measurement.to_nearest[1]),
         ops,
         section,
         px,

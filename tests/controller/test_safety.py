@@ -89,7 +89,7 @@ def one_tick(
     trig = arm_trig(ops, joints[0], joints[1])  # type: ignore[arg-type]
     tcp = tool_position(ROBOT, trig, joints[2])
     measurement = sense(ops, section, CONFIG.sensing_range, tcp, (0.0, 0.0), (1.0, 0.0))  # type: ignore[arg-type]
-    allowed = box(ops, ROBOT, CONFIG, law.step_limits, joints, previous)  # type: ignore[arg-type]
+    allowed = box(ops, law.limits, joints, previous)  # type: ignore[arg-type]
     constraint = barrier(ops, ROBOT, CONFIG, section, trig, tcp, measurement)  # type: ignore[arg-type]
     return allowed, constraint, filtered(ops, wanted, allowed, constraint)  # type: ignore[arg-type]
 
@@ -222,7 +222,7 @@ def test_an_adversary_never_drives_the_arm_into_the_obstacle_or_onto_a_stop(
         else:
             wanted = tuple(draws.uniform(-limit, limit) for limit in ROBOT.speed_limits)
         measurement = sense(SCALAR, law.obstacle, CONFIG.sensing_range, tcp, (0.0, 0.0), (1.0, 0.0))
-        allowed = box(SCALAR, ROBOT, CONFIG, law.step_limits, position, previous)
+        allowed = box(SCALAR, law.limits, position, previous)
         constraint = barrier(SCALAR, ROBOT, CONFIG, law.obstacle, trig, tcp, measurement)
         command, no_safe_motion = filtered(SCALAR, wanted, allowed, constraint)
         braking = braking or no_safe_motion
