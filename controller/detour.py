@@ -26,9 +26,10 @@ ARC_POINTS = 24
 LEG_POINTS = (0.25, 0.5, 0.75)
 """Where on each straight leg (TCP to the boundary, the boundary to the waypoint) a point is
 checked."""
-LIMIT_ROOM = math.radians(2.0)
-"""rad: how far inside every joint limit the way must stay: room for an arm that swings a
-little wide of the boundary (about 10 mm of radius at the inner reach limit)."""
+LIMIT_ROOM = math.radians(0.5)
+"""rad: how far inside every joint limit the way must stay (about 2.5 mm of radius at the
+inner reach limit): the arm may pass up to the pass margin inside the boundary checked, and
+more room refused tasks that a dense search (``sim/passability.py``) finds a way through."""
 
 
 def _anomaly(ops: Ops, section: Section, px: Real, py: Real) -> tuple[Real, Real]:

@@ -39,10 +39,11 @@ def test_a_move_that_passes_the_obstacle_or_goes_over_it_needs_no_way_round() ->
 
 
 def test_next_to_the_inner_reach_limit_only_the_outer_way_is_open() -> None:
-    """Moving anticlockwise (+y) past an obstacle whose edge nearly touches the circle where
-    theta2 meets its stop: the way on the left (nearer the base) is closed."""
+    """Moving anticlockwise (+y) past an obstacle whose edge (grown by the pass margin) reaches
+    over the circle where theta2 meets its stop: the way on the left (nearer the base) is
+    closed."""
     diameter = 0.06
-    radius = INNER + diameter / 2.0 + 0.02 + 0.015 + 0.005  # aim's edge 5 mm off the limit
+    radius = INNER + diameter / 2.0 + 0.02 + 0.015 - 0.002  # aim's edge 2 mm over it
     ways = ways_round(
         ROBOT,
         across(radius, diameter).grown(0.015),
