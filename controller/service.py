@@ -129,7 +129,7 @@ class ServiceNode(ControllerNode):
     def exit_code(self) -> int:
         return 0 if not self.fault else 1
 
-    def on_run_complete(self) -> None:
+    def on_run_end(self) -> None:
         self._end_run()
 
     def result(self) -> dict[str, Any]:
@@ -137,10 +137,12 @@ class ServiceNode(ControllerNode):
         return super().result() | {"runs": self.runs, "completed": self.runs > 0 and self.finished}
 
     def _end_run(self) -> None:
-        """Back to idle; the run's result and log written to ``out``, if given."""
-        self.node_state = NodeState.READY
+        """Back to idle (a timed-out run stays in its fault); the run's result and log
+        written to ``out``, if given."""
+        if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+            self.node_state = NodeState.READY
         self.runs += 1
-        self.log.info("run %d ended (%s)", self.runs, "completed" if self.finished else "stopped")
+        self.log.info("run %d ended (%s)", self.runs, self.outcome or "stopped")
         if self.out is not None:
             self.out.mkdir(parents=True, exist_ok=True)
             self.save(self.out, self.result())
