@@ -274,13 +274,16 @@ class ServiceNode(ControllerNode):
 def with_approach(task: Scenario, tcp: tuple[float, float, float]) -> tuple[Scenario, int]:
     """``task`` preceded by a segment from ``tcp`` to its first waypoint (at
     :data:`APPROACH_SPEED`, :data:`MIN_APPROACH` at least), and how many waypoints that added
-    (0 when the arm is already there). :class:`ConfigError` if that segment is not a path."""
+    (0 when the arm is already there); a timeout the task sets is lengthened by the segment's
+    time (the default follows the waypoints). :class:`ConfigError` if that segment is not a
+    path."""
     first = task.waypoints[0]
     distance = math.dist(tcp, (first.x, first.y, first.z))
     if distance < ALREADY_THERE:
         return task, 0
     lead = max(MIN_APPROACH, distance / APPROACH_SPEED)
     start = Waypoint(first.t - lead, *tcp)
-    run = replace(task, waypoints=(start, *task.waypoints))
+    timeout = None if task.timeout is None else task.timeout + lead
+    run = replace(task, waypoints=(start, *task.waypoints), timeout=timeout)
     check_plan(run)
     return run, 1
