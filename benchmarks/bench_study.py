@@ -78,7 +78,7 @@ def generate(count: int, executor: Processes) -> list[Scenario]:
     chunks = [(SEED, indices[i : i + GENERATE_CHUNK]) for i in indices[::GENERATE_CHUNK]]
     generated: dict[int, Scenario] = {}
     for chunk in executor.map(generate_chunk, chunks):
-        generated.update(chunk)
+        generated.update((index, scenario) for index, scenario, _ in chunk)
     return [generated[index] for index in indices]
 
 

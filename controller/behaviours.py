@@ -11,10 +11,11 @@ import math
 from typing import NamedTuple
 
 from controller.coordination import AHEAD_NONE
+from controller.detour import passable
 from controller.obstacle import ObstacleMeasurement
-from protocol.config import ControllerConfig
+from protocol.config import ControllerConfig, RobotConfig
 from protocol.geometry import Section, length, nearest_point, tangent_points, to_local, wrap_angle
-from protocol.ops import Ops, Real
+from protocol.ops import Mask, Ops, Real
 
 TURN_LEFT = 1
 TURN_RIGHT = -1
@@ -85,25 +86,47 @@ def plan_tracking(
 def avoid_obstacle(
     ops: Ops,
     config: ControllerConfig,
+    robot: RobotConfig,
     aim: Section,
     measurement: ObstacleMeasurement,
     min_distance: Real,
     side: Real,
     heading: Real,
     position: tuple[Real, Real],
+    goal: tuple[Real, Real],
+    elbow: Real,
+    near_stop: Mask,
 ) -> tuple[Command, Real]:
     """AO with its TL/TR choice (``side``: +1 TL, -1 TR, 0 none yet), and the side kept.
 
     AO acts while the obstacle is present and ahead, or the TCP moves towards it (or is
     inside it); it chooses its side when it starts to act, away from the side the obstacle is
-    nearer on, keeps it while it acts, and forgets it when it stops.
+    nearer on unless the joint limits close that way round to ``goal`` and leave the other
+    open (:mod:`controller.detour`; ``elbow``: the sign of theta2), keeps it while it acts
+    unless that way closes (checked while ``near_stop``: a joint near its stop), and forgets
+    it when it stops.
     """
     engaged = measurement.present & ops.not_(
         (ops.max(measurement.ahead, measurement.toward) <= AHEAD_NONE)
         & (measurement.clearance > 0.0)
     )
+    fresh = side == 0
     chosen = ops.where(measurement.d_left >= measurement.d_right, TURN_LEFT, TURN_RIGHT)
-    side = ops.where(engaged, ops.where(side == 0, chosen, side), 0)
+    side = ops.where(engaged, ops.where(fresh, chosen, side), 0)
+    # The side is checked when it is chosen, and again while a joint is near its stop (where
+    # a way round closes), if the way to the goal is blocked.
+    side = ops.branch(
+        engaged & (fresh | near_stop) & measurement.blocked,
+        _side_the_joints_take,
+        side,
+        ops,
+        robot,
+        aim,
+        position,
+        goal,
+        side,
+        elbow,
+    )
     command = ops.branch(
         engaged,
         _avoid,
@@ -117,6 +140,23 @@ def avoid_obstacle(
         min_distance,
     )
     return command, side
+
+
+def _side_the_joints_take(
+    ops: Ops,
+    robot: RobotConfig,
+    aim: Section,
+    position: tuple[Real, Real],
+    goal: tuple[Real, Real],
+    preferred: Real,
+    elbow: Real,
+) -> Real:
+    """``preferred``, unless its way round ``aim`` is closed and the other one open."""
+    closed = ops.not_(passable(ops, robot, aim, position, goal, preferred, elbow))
+    if not ops.any(closed):
+        return preferred
+    other_open = passable(ops, robot, aim, position, goal, -preferred, elbow)
+    return ops.where(closed & other_open, -preferred, preferred)
 
 
 def _avoid(

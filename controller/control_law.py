@@ -10,8 +10,8 @@ Beyond the paper's blend, the plan waits for an arm that a detour has held off t
 inner waypoint (time scaling): the reference moves on past the waypoint once the arm has come
 to it, instead of pulling the arm across the corner. Near the waypoint the arm is brought
 onto it (the final approach), and limits on the output keep it off the obstacle's margin and
-off the arm's full reach. ``docs/design.md`` describes the law and ``docs/study.md`` the
-measurements each part answers.
+off the arm's full reach. The safety filter (:mod:`controller.safety`) has the last word.
+``docs/design.md`` describes the law and ``docs/study.md`` the measurements each part answers.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from controller.behaviours import PLANNED_REST_SPEED, Command, avoid_obstacle, p
 from controller.coordination import Coordination, smoothstep, weights
 from controller.obstacle import NO_OBSTACLE, ObstacleMeasurement, sense
 from controller.planner import Trajectory, cubic, plan_of
+from controller.safety import barrier, box, filtered
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.geometry import EllipticCylinder, Section, distance, length, wrap_angle
 from protocol.kinematics import arm_trig, joint_rates, reach_radii, tool_position
@@ -77,6 +78,8 @@ LOOP_AGAINST = 0.5
 """How far the straight way onto a waypoint points against the plan's way out of it (the
 cosine of the angle between them, negated) where the final approach is a loop in full. From
 90 degrees the straight way hands over to the loop, and from 120 degrees it loops."""
+NEAR_STOP = math.radians(5.0)
+"""rad: a revolute joint this near its stop has AO check that its way round is still open."""
 GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at
@@ -185,7 +188,11 @@ class ControlOutput(NamedTuple):
     blended: Command
     heading: Real
     limited: Mask
+    """The output limits or the safety filter changed the command."""
     progress: Real
+    no_safe_motion: Mask
+    """No command within the joint limits keeps the barrier (:mod:`controller.safety`): the
+    controller faults and brakes."""
 
 
 def law_of(
@@ -342,7 +349,18 @@ def step(
         (squared * acceleration[0], squared * acceleration[1]),
     )
     avoiding, side = avoid_obstacle(
-        ops, config, law.aim, measurement, min_distance, side, heading, (tcp[0], tcp[1])
+        ops,
+        config,
+        law.robot,
+        law.aim,
+        measurement,
+        min_distance,
+        side,
+        heading,
+        (tcp[0], tcp[1]),
+        goal,
+        ops.where(theta2 >= 0.0, 1.0, -1.0),
+        _near_stop(ops, law.robot, theta1, theta2),
     )
     at_waypoint = _at_waypoint(
         ops,
@@ -378,7 +396,15 @@ def step(
         reference[2] + ops.max(pull, lead) * (waited[2] - reference[2]) - tcp[2]
     )
     rate1, rate2 = joint_rates(ops, law.robot, theta2, trig, vx, vy, config.damping)
-    command, limited = _limit(ops, law, (rate1, rate2, -vz), state.previous)
+    wanted, limited = _limit(ops, law, (rate1, rate2, -vz), state.previous)
+    command, no_safe_motion = filtered(
+        ops,
+        wanted,
+        box(ops, law.robot, config, law.step_limits, joints, state.previous),
+        barrier(ops, law.robot, config, law.obstacle, trig, tcp, measurement),
+    )
+    limited = limited | (command[0] != wanted[0]) | (command[1] != wanted[1])
+    limited = limited | (command[2] != wanted[2])
 
     # On a loop the heading turns with the TCP's way round, so that it points along the
     # plan, not back at the waiting reference, when the arm comes onto the waypoint.
@@ -409,8 +435,19 @@ def step(
         heading,
         limited,
         progress,
+        no_safe_motion,
     )
     return output, LawState(heading, side, command, progress, rate, t, reached)
+
+
+def _near_stop(ops: Ops, robot: RobotConfig, theta1: Real, theta2: Real) -> Mask:
+    """theta1 or theta2 within NEAR_STOP of a stop, where a way round the obstacle may close."""
+    return (
+        (theta1 - robot.theta1_min < NEAR_STOP)
+        | (robot.theta1_max - theta1 < NEAR_STOP)
+        | (theta2 - robot.theta2_min < NEAR_STOP)
+        | (robot.theta2_max - theta2 < NEAR_STOP)
+    )
 
 
 def _turn_with_loop(

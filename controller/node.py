@@ -29,6 +29,7 @@ reset.
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -83,13 +84,37 @@ flooded with retries, and a lossy bus still gets many tries before LOCKSTEP_GIVE
 LOCKSTEP_RETRY_MAX = 0.1
 """s: the longest wait between two sends of the same lockstep tick."""
 LOCKSTEP_GIVE_UP = 1.0
-"""s without any answer in lockstep before the controller faults (the plant is gone)."""
+"""s without any answer in lockstep before the controller faults (the plant is gone), unless
+the environment variable named by GIVE_UP_VARIABLE sets another. Lockstep stays exact however
+long an answer takes, but a plant that answers later than this is taken for a gone one: a host
+that can stall the nodes for longer needs a longer bound (in the hil tier's emulated VM, on a
+loaded host, the whole guest stopped for 1.25 s and a run faulted, docs/hil.md)."""
+LOCKSTEP_STARTUP = 30.0
+"""s the controller waits in lockstep for the plant's first answer (it may start before the
+plant), unless the environment variable named by STARTUP_VARIABLE sets another."""
+GIVE_UP_VARIABLE = "SCARA_LOCKSTEP_GIVE_UP"
+STARTUP_VARIABLE = "SCARA_LOCKSTEP_STARTUP"
 ZERO: Joints = (0.0, 0.0, 0.0)
 _D_MAX = 0.255
 """m: d_L and d_R saturate here on the wire (sensing range 0.2 m by default)."""
 _SIDES = {0: Side.NONE, TURN_LEFT: Side.LEFT, TURN_RIGHT: Side.RIGHT}
 PREALLOCATED_ROWS = 65536
 """Log rows reserved up front (a longer run's log grows)."""
+
+
+def lockstep_wait(variable: str, default: float) -> float:
+    """s: the environment variable ``variable``'s value if set, else ``default``; a value that
+    is not a positive number of seconds is a :class:`ConfigError` naming the variable."""
+    text = os.environ.get(variable, "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise ConfigError(variable, f"{text!r} is not a positive number of seconds")
+    return value
 
 
 @dataclass(slots=True)
@@ -150,6 +175,11 @@ class ControllerNode(Node):
         self.scenario = scenario
         self.clock_mode = clock_mode
         self.comms_timeout = comms_timeout
+        self.lockstep_give_up = LOCKSTEP_GIVE_UP
+        self.lockstep_startup = LOCKSTEP_STARTUP
+        if clock_mode is ClockMode.LOCKSTEP:  # read here: a bad value stops the start, named
+            self.lockstep_give_up = lockstep_wait(GIVE_UP_VARIABLE, LOCKSTEP_GIVE_UP)
+            self.lockstep_startup = lockstep_wait(STARTUP_VARIABLE, LOCKSTEP_STARTUP)
         self.sleep = sleep
         self.wall_clock = wall_clock
         self.stats = LoopStats(self.period)
@@ -167,6 +197,11 @@ class ControllerNode(Node):
         self.plant = PlantSeen()
         self._round_trip = LOCKSTEP_RETRY / 2.0
         """s from a lockstep command to its answer, smoothed (the first retry waits twice)."""
+        self._commands: list[int] = []
+        """Lockstep: the counter the plant echoed at the start, then the counter of each
+        command sent, in order (see :meth:`_answers`)."""
+        self._echoed = 0
+        """Lockstep: the command (index in ``_commands``) the last answer echoed, at least."""
         self.ticks_to_run = self.tick = self.slot = 0  # no run prepared yet
         self.outcome: RunOutcome | None = None
         """How the run prepared last ended (None: it has not)."""
@@ -435,19 +470,34 @@ class ControllerNode(Node):
     # --- lockstep --------------------------------------------------------------------------------
 
     def run_lockstep(
-        self, startup_timeout: float = 30.0, max_wall_time: float | None = None
+        self,
+        startup_timeout: float | None = None,
+        max_wall_time: float | None = None,
+        give_up: float | None = None,
     ) -> None:
         """Step the plant tick by tick; a lost answer is asked for again.
 
-        If no answer comes for LOCKSTEP_GIVE_UP the plant is taken as gone: the controller
-        sends zero with Enable = 0, goes to fault and returns. A fault, an e-stop or a reset
+        If no answer comes for ``give_up`` s (default: ``lockstep_give_up``, LOCKSTEP_GIVE_UP
+        or its environment variable's) the plant is taken as gone: the controller sends zero
+        with Enable = 0, goes to fault and returns; the plant's first answer may take
+        ``startup_timeout`` s (default: ``lockstep_startup``). A fault, an e-stop or a reset
         received meanwhile also ends the run (zero sent).
         """
+        if startup_timeout is None:
+            startup_timeout = self.lockstep_startup
+        if give_up is None:
+            give_up = self.lockstep_give_up
         started = self.clock()
         self.send_status_if_due(started)  # ready, until the plant answers
         state = self._exchange(0, None, give_up=started + startup_timeout)
         if state is None:
             return
+        # Number the commands on from the counter the plant echoes now (0 from a new plant):
+        # the first is then not that counter, which late answers to the start's StepSyncs echo.
+        while self.next_counter(COMMAND) != state.echo:
+            pass
+        self._commands = [state.echo]
+        self._echoed = 0
         self.node_state = NodeState.RUNNING
         while self.running and not self.done:
             if self.node_state is not NodeState.RUNNING or (
@@ -459,7 +509,7 @@ class ControllerNode(Node):
             self.slot += 1
             if self.node_state is not NodeState.RUNNING:  # timed out
                 break
-            answer = self._exchange(self.tick, output.command, self.clock() + LOCKSTEP_GIVE_UP)
+            answer = self._exchange(self.tick, output.command, self.clock() + give_up)
             if answer is None:
                 if self.running and self.node_state is NodeState.RUNNING:
                     self.enter_fault(ControllerFault.STALE_STATE)
@@ -480,13 +530,14 @@ class ControllerNode(Node):
         same values under new counters), each wait longer (see LOCKSTEP_RETRY), until ``give_up``.
         ``rates`` None: StepSync alone, which the plant answers without stepping (the start).
 
-        An answer echoing any of the commands sent for this tick is taken: they all carry the
-        same rates, and the plant steps once per tick whichever of them it stepped under.
-        Waiting only for the latest would never end on a host whose round trip is longer
-        than the wait: each answer would arrive just after the next retry made it old.
+        An answer to any of the commands sent for this tick is taken: they all carry the same
+        rates, and the plant steps once per tick whichever of them it stepped under. Waiting
+        only for the latest would never end on a host whose round trip is longer than the
+        wait: each answer would arrive just after the next retry made it old. Which command an
+        answer is to, its echo tells together with the order of the answers (:meth:`_answers`).
         """
         self.state = None
-        sent: set[int] = set()
+        first = len(self._commands)
         wait = min(max(LOCKSTEP_RETRY, 2.0 * self._round_trip), LOCKSTEP_RETRY_MAX)
         first_sent = self.clock()
         while self.running:
@@ -494,7 +545,7 @@ class ControllerNode(Node):
             command = 0
             if rates is not None:
                 command = self.next_counter(COMMAND)
-                sent.add(command)
+                self._commands.append(command)
                 frames.append((COMMAND, command_record(rates), command))
             step = STEP.Record(CommandCounter=command, Tick=tick)
             frames.append((STEP, step, self.next_counter(STEP)))
@@ -510,9 +561,10 @@ class ControllerNode(Node):
             while True:  # read what came at least once, even after a stall of this process
                 self.drain(timeout=max(0.0, resend - self.clock()))
                 state = self.state
-                if state is not None and (rates is None or state.echo in sent):
+                if state is not None and (rates is None or self._answers(state.echo, first)):
                     self._round_trip += 0.1 * (self.clock() - first_sent - self._round_trip)
                     return state
+                self.state = None
                 if self.clock() >= resend:
                     break
             if self.clock() >= give_up:
@@ -520,6 +572,25 @@ class ControllerNode(Node):
             if rates is not None:
                 self.stats.lockstep_retries += 1
         return None
+
+    def _answers(self, echo: int, first: int) -> bool:
+        """Whether a joint state echoing the command counter ``echo`` answers this tick, whose
+        first command is ``_commands[first]``.
+
+        The plant takes frames in the order they were sent and echoes the last command it
+        took, so an answer echoes a command at or after the one the previous answer echoed:
+        the first such command with this counter, if it is one of this tick's, makes the answer
+        this tick's. If it is an earlier one, the answer may be a late one to an earlier tick
+        (the plant answers a StepSync repeated after it had answered; at the start, before any
+        command, it echoes 0, the counter of a first command numbered from 0). The counter
+        alone would take such an answer for this tick's: counters repeat every 16 commands,
+        and a tick retried for long reuses them all.
+        """
+        for index in range(self._echoed, len(self._commands)):
+            if self._commands[index] == echo:
+                self._echoed = index
+                return index >= first
+        return False  # none of this run's commands since: not an answer to them
 
     # --- results ---------------------------------------------------------------------------------
 

@@ -15,6 +15,7 @@ gives a scenario's plan and :func:`check_plan` checks that it stays in the works
 
 from __future__ import annotations
 
+import itertools
 import math
 from bisect import bisect_right
 from collections.abc import Sequence
@@ -24,7 +25,13 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from protocol.errors import ConfigError, KinematicsError, PathOutsideWorkspaceError
+from controller.detour import ways_round
+from protocol.errors import (
+    ConfigError,
+    KinematicsError,
+    NoWayRoundError,
+    PathOutsideWorkspaceError,
+)
 from protocol.kinematics import clearly_reachable, inverse
 from protocol.ops import Real
 from protocol.scenario import Scenario, load_scenario
@@ -347,7 +354,9 @@ def plan_of(scenario: Scenario) -> Trajectory:
 
 def check_plan(scenario: Scenario) -> None:
     """The planned path between the waypoints must stay inside the workspace (every
-    :data:`PATH_CHECK_STEP`); a :class:`ConfigError` names the segment if it does not.
+    :data:`PATH_CHECK_STEP`), and a segment the obstacle stands across must leave a way round
+    it inside the joint limits (:func:`controller.detour.ways_round`); a :class:`ConfigError`
+    names the segment if not.
 
     The points are checked all at once with a margin; only those not clearly inside go
     through :func:`inverse` one by one, which has the last word (and the message).
@@ -371,6 +380,22 @@ def check_plan(scenario: Scenario) -> None:
                 f"waypoints[{segment - 1}..{segment}]",
                 f"the planned path leaves the workspace at t = {t:.3f} s: {error}",
             ) from error
+    if scenario.obstacle is None:
+        return
+    aim = scenario.obstacle.grown(scenario.controller.ao_pass_margin)
+    for segment, (here, there) in enumerate(itertools.pairwise(scenario.waypoints)):
+        ways = ways_round(
+            scenario.robot,
+            aim,
+            (here.x, here.y, here.z),
+            (there.x, there.y, there.z),
+            scenario.elbow,
+        )
+        if ways is not None and not any(ways):
+            raise NoWayRoundError(
+                f"waypoints[{segment}..{segment + 1}]",
+                "no way round the obstacle inside the joint limits",
+            )
 
 
 def load_planned(source: str | Path) -> Scenario:

@@ -29,6 +29,7 @@ from typing import Any
 import can
 
 from plant_sim.model import PlantModel
+from protocol.bus import enlarge_receive_buffer, receive_drops
 from protocol.cli import number, quiet_on_closed_pipe
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError
@@ -88,6 +89,12 @@ class PlantNode(Node):
         super().__init__(bus, clock)
         self.scenario = scenario
         self.clock_mode = clock_mode
+        if clock_mode is ClockMode.LOCKSTEP:
+            # Every StepSync counts: one dropped by a full receive queue (the default holds
+            # about 950 frames) costs a live run a retry, but a replay that does not wait for
+            # the plant (canplayer) its whole rest. A queue as large as the recorder's keeps
+            # what arrives while the plant is not scheduled.
+            enlarge_receive_buffer(bus)
         self.period = scenario.controller.period
         self.world = World.of(scenario, STARTUP_WORLD)
         self.obstacle = self.world.touched()
@@ -277,7 +284,12 @@ class PlantNode(Node):
             self.send_status_if_due(now)
 
     def result(self) -> dict[str, Any]:
-        return super().result() | {"stats": asdict(self.stats)}
+        """``receive_drops``: frames the kernel dropped for want of room in the SocketCAN
+        receive queue (None on another transport)."""
+        return super().result() | {
+            "stats": asdict(self.stats),
+            "receive_drops": receive_drops(self.bus),
+        }
 
 
 def build_parser() -> argparse.ArgumentParser:

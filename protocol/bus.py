@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 import socket
+import struct
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -100,16 +101,50 @@ SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 """Linux's SO_RCVBUFFORCE (Python names it from 3.12 on)."""
 
 
+SO_MEMINFO = getattr(socket, "SO_MEMINFO", 55)
+"""Linux's SO_MEMINFO: a socket's memory counters, its drops among them."""
+_MEMINFO_DROPS = 8
+"""SK_MEMINFO_DROPS: the index of the drop count among SO_MEMINFO's 32-bit counters."""
+
+
+def can_socket(bus: Any) -> socket.socket | None:
+    """The SocketCAN socket of ``bus`` (also under a wrapper that keeps its bus in ``inner``,
+    like the fault injector), or None where the bus is of another kind."""
+    while bus is not None:
+        raw = getattr(bus, "socket", None)
+        if isinstance(raw, socket.socket) and raw.family == socket.AF_CAN:
+            return raw
+        bus = getattr(bus, "inner", None)
+    return None
+
+
 def enlarge_receive_buffer(bus: can.BusABC, size: int = RECEIVE_BUFFER) -> None:
     """Ask for a ``size`` receive queue where the bus is a SocketCAN socket (SO_RCVBUFFORCE
     where allowed, else SO_RCVBUF up to the system's limit); other buses queue in process."""
-    raw = getattr(bus, "socket", None)
-    if not isinstance(raw, socket.socket) or raw.family != socket.AF_CAN:
+    raw = can_socket(bus)
+    if raw is None:
         return
     try:
         raw.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, size)
     except OSError:  # no CAP_NET_ADMIN
         raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+
+
+def receive_drops(bus: can.BusABC) -> int | None:
+    """Frames the kernel dropped so far because the receive queue of ``bus``'s SocketCAN
+    socket was full (the socket's drop count, which SO_RXQ_OVFL would attach to each frame;
+    python-can's reader takes no such extra data, so it is read with SO_MEMINFO); None where
+    the bus is not a SocketCAN socket, or the kernel does not say."""
+    raw = can_socket(bus)
+    if raw is None:
+        return None
+    try:
+        info = raw.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (_MEMINFO_DROPS + 1))
+    except OSError:
+        return None
+    if len(info) < 4 * (_MEMINFO_DROPS + 1):
+        return None
+    return int(struct.unpack_from("=I", info, 4 * _MEMINFO_DROPS)[0])
 
 
 def open_bus_from_args(args: argparse.Namespace) -> can.BusABC:

@@ -124,7 +124,11 @@ class ControllerConfig:
     obstacle grown by ``ao_pass_margin``. Whatever the blend, the TCP never moves towards the
     obstacle's margin faster than ``approach_rate`` times its clearance (see
     ``ControlLaw._approach_limited``), nor outwards faster than ``reach_rate`` times its
-    distance from the arm's full reach (``ControlLaw._reach_limited``).
+    distance from the arm's full reach (``ControlLaw._reach_limited``). Last, the safety
+    filter (``controller/safety.py``) keeps the TCP's clearance to the inflated obstacle, less
+    ``safety_buffer``, from falling faster than ``safety_rate`` times itself, and each joint
+    from nearing its stop faster than ``limit_rate`` times the way left or than it can brake
+    from, after drives that lag by up to ``drive_lag`` (s).
     """
 
     rate_hz: float = 500.0
@@ -143,6 +147,10 @@ class ControllerConfig:
     damping: float = 0.01
     approach_rate: float = 5.0
     reach_rate: float = 10.0
+    safety_rate: float = 10.0
+    safety_buffer: float = 0.001
+    limit_rate: float = 20.0
+    drive_lag: float = 0.01
 
     def __post_init__(self) -> None:
         _check_table("controller", asdict(self))

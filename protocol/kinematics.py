@@ -155,6 +155,28 @@ def clearly_reachable(
     )
 
 
+def reaches(ops: Ops, config: RobotConfig, x: Real, y: Real, elbow: Real, margin: float) -> Real:
+    """Whether the arm reaches the plane point (x, y) with its elbow on the side ``elbow``
+    (+1 as :attr:`Elbow.DOWN`, -1 as UP) and theta1 and theta2 at least ``margin`` rad inside
+    their limits (:func:`inverse`'s arithmetic, over :mod:`protocol.ops`: for the detours
+    the control law checks on floats and the batch on arrays)."""
+    a1, a2 = config.a1, config.a2
+    c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2.0 * a1 * a2)
+    inside = abs(c2) < 1.0
+    c2 = ops.min(ops.max(c2, -1.0), 1.0)
+    s2 = elbow * ops.sqrt((1.0 - c2) * (1.0 + c2))
+    theta2 = ops.atan2(s2, c2)
+    theta1 = ops.atan2(y, x) - ops.atan2(a2 * s2, a1 + a2 * c2)
+    theta1 = (theta1 + math.pi) % math.tau - math.pi
+    return (
+        inside
+        & (config.theta2_min + margin < theta2)
+        & (theta2 < config.theta2_max - margin)
+        & (config.theta1_min + margin < theta1)
+        & (theta1 < config.theta1_max - margin)
+    )
+
+
 def jacobian_planar(
     config: RobotConfig, theta1: float, theta2: float
 ) -> tuple[float, float, float, float]:

@@ -6,6 +6,8 @@ of worker processes, or over a Dask cluster with ``--scheduler``. Prints a table
 modes side by side, and writes every run's measures as CSV, a figure of their distributions
 and the worst case of each mode drawn like the paper's Figs. 8 and 9 (re-run in the scalar
 simulation for its log). ``--sweep`` repeats the study for other gains or fuzzy rule bases.
+``--family`` picks the scenarios (the tuned-on mix by default); the held-out part is refused
+unless ``--held-out`` is given, so that nobody tunes on it by accident.
 
 This module is the command line only; the study's jobs are the modules of :mod:`sim.study`.
 """
@@ -23,8 +25,9 @@ from typing import Any
 from tqdm import tqdm
 
 from protocol.cli import add_verbosity, configure_logging, interruptible, quiet_on_closed_pipe
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, NoWayRoundError
 from protocol.scenario import Mode, Scenario
+from sim.generator import HELD_OUT_SEEDS, Family, is_held_out
 from sim.study.jobs import (
     DEFAULT_BATCH,
     GENERATE_CHUNK,
@@ -35,6 +38,7 @@ from sim.study.jobs import (
     run_ticks,
 )
 from sim.study.pool import Cluster, Processes
+from sim.study.refusals import DEFAULT_CHECKED, refusal_report
 from sim.study.results import (
     compare_jerk,
     format_summary,
@@ -65,6 +69,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--seed", type=int, default=0, help="the generator's seed (default 0)")
     parser.add_argument(
+        "--family",
+        choices=[family.value for family in Family],
+        default=Family.MIX.value,
+        metavar="NAME",
+        help="which scenarios: mix (the seven cases the law was tuned on, the default), inner "
+        "or outer (an obstacle at a reach limit), fast (a detour at up to 0.4 m/s), multi "
+        "(several detours in one task), user (tasks as users wrote them), held_out",
+    )
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help=f"allow the held-out part (family held_out, or a seed from {HELD_OUT_SEEDS}): "
+        "only to judge the law once it is tuned, never to tune it",
+    )
+    parser.add_argument(
         "--out",
         type=Path,
         default=Path("out/compare"),
@@ -90,6 +109,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="also run each value of a controller gain (switch_distance=0.03,0.07), of a "
         "fuzzy input term (min_distance.near=0:0:0.02:0.05, a:b:c:d) or of the output peaks "
         "(k_C.peaks=0.1:0.5:0.9); repeatable",
+    )
+    parser.add_argument(
+        "--check-refused",
+        type=int,
+        default=DEFAULT_CHECKED,
+        metavar="N",
+        help="check N of the tasks the controller refuses (no way round the obstacle) by "
+        f"brute force: a dense search for a way it missed (default {DEFAULT_CHECKED})",
     )
     parser.add_argument("--no-figure", action="store_true", help="skip the figures")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -119,6 +146,12 @@ def _main(argv: Sequence[str] | None) -> int:
     ):
         if value < least:
             parser.error(f"{flag} must be at least {least}, got {value}")
+    family = Family(args.family)
+    if is_held_out(family, args.seed) and not args.held_out:
+        parser.error(
+            f"family {family.value} with seed {args.seed} is held out for judging the tuned "
+            "law; give --held-out to run it"
+        )
     variants = [BASELINE]
     for text in args.sweep:
         try:
@@ -135,19 +168,31 @@ def _main(argv: Sequence[str] | None) -> int:
             Cluster(args.scheduler) if args.scheduler else Processes(args.workers, bar.update)
         )
         indices = list(range(args.count))
-        chunks = [(args.seed, indices[i : i + GENERATE_CHUNK]) for i in indices[::GENERATE_CHUNK]]
+        chunks = [
+            (args.seed, indices[i : i + GENERATE_CHUNK], family, args.held_out)
+            for i in indices[::GENERATE_CHUNK]
+        ]
         generated: dict[int, Scenario] = {}
+        refused: list[tuple[Scenario, NoWayRoundError]] = []
         for chunk in executor.map(generate_chunk, chunks):
-            generated.update(chunk)
+            for index, scenario, refusal in chunk:
+                if refusal is None:
+                    generated[index] = scenario
+                else:
+                    refused.append((scenario, refusal))
             bar.update(len(chunk))
         bar.close()
         log.info(
-            "generated %d scenarios of seed %d in %.1f s",
+            "generated %d scenarios of seed %d in %.1f s (family %s)",
             args.count,
             args.seed,
             time.perf_counter() - started,
+            family.value,
         )
-        scenarios = [generated[index] for index in indices]
+        scenarios = [generated[index] for index in indices if index in generated]
+        print(refusal_report(args.count, refused, args.check_refused))
+        if not scenarios:
+            return 0
         jobs = plan_jobs(scenarios, variants, args.batch, args.workers)
         total = sum(run_ticks(scenario) for job in jobs for scenario in job.scenarios)
         log.info(

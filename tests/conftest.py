@@ -23,7 +23,16 @@ from typing import Any
 import can
 import pytest
 from hypothesis import settings
-from support import SLOWDOWN, Observer, Processes, Transport, free_port, hil_marks, wait_until
+from support import (
+    SLOWDOWN,
+    Observer,
+    Processes,
+    Transport,
+    free_port,
+    hil_marks,
+    stretch_lockstep_waits,
+    wait_until,
+)
 
 from protocol.zenoh_can.config import router_reachable
 
@@ -39,8 +48,11 @@ def pytest_configure(config: pytest.Config) -> None:
     """SIGINT back to Python's own handler here, so that the processes the tests start and
     stop with SIGINT (python-can's tools among them) do not inherit it ignored from a shell
     without job control that started the tests in the background (a script's ``cmd &``);
-    our own commands stop on SIGINT either way (``protocol.cli.interruptible``)."""
+    our own commands stop on SIGINT either way (``protocol.cli.interruptible``). And the
+    product's lockstep waits stretched by SLOWDOWN for every process the tests start
+    (``support.stretch_lockstep_waits``)."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    stretch_lockstep_waits()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -7,6 +7,8 @@
 - :class:`Observer`: a bus of the test's own that records every frame it receives.
 - :func:`wait_until`: a bounded wait for a condition.
 - :func:`hil_marks`: the marks of a test on SocketCAN ``vcan0`` (the ``hil`` tier).
+- :func:`stretch_lockstep_waits`: the product's lockstep waits stretched by SLOWDOWN.
+- :func:`wait_while_growing`: a wait that fails only once progress has stopped.
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -33,6 +35,12 @@ import can
 import pytest
 import zenoh
 
+from controller.node import (
+    GIVE_UP_VARIABLE,
+    LOCKSTEP_GIVE_UP,
+    LOCKSTEP_STARTUP,
+    STARTUP_VARIABLE,
+)
 from protocol.bus import enlarge_receive_buffer
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,6 +64,24 @@ show, never whether a test passes."""
 EMULATED = SLOWDOWN > 1.0
 """The nodes run far slower than real time asks here (the software-emulated VM of
 ``.ci/run``)."""
+
+
+LOCKSTEP_WAITS = {GIVE_UP_VARIABLE: LOCKSTEP_GIVE_UP, STARTUP_VARIABLE: LOCKSTEP_STARTUP}
+"""The product's own bounds on waiting for the plant in lockstep, by the environment variable
+that sets each (``controller/node.py``)."""
+
+
+def stretch_lockstep_waits() -> None:
+    """Where SLOWDOWN is above 1, every lockstep controller the tests start (the environment
+    passes to it through any launcher) waits SLOWDOWN times longer for the plant than the
+    product's defaults, as a user must set them on a host that stalls as long: these bounds
+    decide whether a run faults, not only how long a failure takes to show. In the emulated
+    VM on a loaded host the whole guest stopped for 1.25 s and runs faulted at the 1 s default
+    (``docs/hil.md``); lockstep stays exact however long the plant takes."""
+    if SLOWDOWN == 1.0:
+        return
+    for variable, default in LOCKSTEP_WAITS.items():
+        os.environ.setdefault(variable, f"{default * SLOWDOWN:g}")
 
 
 def real_time_needed() -> None:
@@ -110,6 +136,21 @@ def wait_until(condition: Callable[[], bool], timeout: float, what: str) -> None
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(0.005)
+
+
+def wait_while_growing(size: Callable[[], int], target: int, quiet: float, what: str) -> None:
+    """Poll ``size()`` until it reaches ``target``; fail naming ``what`` once it has not grown
+    for ``quiet`` s (times SLOWDOWN): for a wait whose length depends on how far behind the
+    waited-for process is, not only on how slow the machine is."""
+    quiet *= SLOWDOWN
+    last, since = size(), time.monotonic()
+    while last < target:
+        time.sleep(0.05)
+        now = size()
+        if now > last:
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since > quiet:
+            raise AssertionError(f"{what}: {last} of {target}, no progress for {quiet} s")
 
 
 @dataclass(frozen=True)

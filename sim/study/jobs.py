@@ -10,9 +10,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from controller.fuzzy import RuleBase
+from controller.planner import check_plan
+from protocol.errors import NoWayRoundError
 from protocol.scenario import Mode, Scenario
 from sim.batch import BatchRun, simulate_batch
-from sim.generator import generate_scenario_at
+from sim.generator import Family, generate_scenario_at
 from sim.study.pool import progress_reporter
 from sim.study.variants import Variant
 
@@ -50,9 +52,28 @@ class Outcome:
     run: BatchRun
 
 
-def generate_chunk(seed: int, indices: Sequence[int]) -> list[tuple[int, Scenario]]:
-    """Scenarios ``indices`` of the study ``seed`` (each depends on its index only)."""
-    return [(index, generate_scenario_at(seed, index)) for index in indices]
+def generate_chunk(
+    seed: int, indices: Sequence[int], family: Family = Family.MIX, held_out: bool = False
+) -> list[tuple[int, Scenario, NoWayRoundError | None]]:
+    """Scenarios ``indices`` of ``family``'s study ``seed`` (each depends on its index only;
+    a held-out one only with ``held_out``), each with the controller's refusal if it refuses
+    it (no way round the obstacle: the generator offers such tasks as a user would)."""
+    return [
+        (index, scenario, refusal(scenario))
+        for index, scenario in (
+            (index, generate_scenario_at(seed, index, family=family, held_out=held_out))
+            for index in indices
+        )
+    ]
+
+
+def refusal(scenario: Scenario) -> NoWayRoundError | None:
+    """The plan check's refusal of ``scenario`` for want of a way round, if it refuses it."""
+    try:
+        check_plan(scenario)
+    except NoWayRoundError as error:
+        return error
+    return None
 
 
 def run_job(job: Job) -> list[Outcome]:

@@ -26,7 +26,7 @@ from controller.control_law import (
 )
 from controller.coordination import Coordination, weights
 from controller.obstacle import ObstacleMeasurement, measure
-from protocol.config import ControllerConfig
+from protocol.config import ControllerConfig, RobotConfig
 from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder
 from protocol.ops import SCALAR
@@ -68,12 +68,16 @@ def test_avoiding_turns_to_the_chosen_side_and_settles_on_the_edge(side: int) ->
         command, kept = avoid_obstacle(
             SCALAR,
             CONFIG,
+            RobotConfig(),
             aim.section(),
             measurement,
             measurement.min_distance,
             side,
             heading,
             tcp[:2],
+            (0.7, 0.0),
+            1.0,
+            False,
         )
         assert kept == side
         return command

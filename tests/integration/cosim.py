@@ -14,7 +14,7 @@ from typing import Any
 import can
 import numpy as np
 import pytest
-from support import Process, Processes, Transport
+from support import SLOWDOWN, Process, Processes, Transport
 
 from plant_sim.node import PlantNode
 from protocol.codec import WIRE
@@ -43,6 +43,11 @@ FAULTS = "drop=0.05,corrupt=0.01"
 STARTUP = 15.0
 """s a node may take to start (import, open the bus) and reach the state a test waits for."""
 STALE_TICKS = 3
+RUN_TIMEOUT = 200.0
+"""s a run started with :func:`launch` may take (times SLOWDOWN): scara-run's ``--timeout``,
+which in lockstep becomes the controller's ``--max-wall-time`` (its default, 600 s, unstretched,
+is too short for the emulated VM on a loaded host: 2156 of the reference scenario's 3251
+lockstep ticks took 268 s there, 8 ticks/s, and more load slows it further)."""
 
 
 # --------------------------------------------------------------------------- helpers
@@ -64,10 +69,10 @@ def launch(
     """Run ``scara-run`` on ``scenario`` to the end; its exit code and the run's report as a
     dict: the controller's result, ``"plant"`` the plant's, ``"measures"`` those of the log."""
     launcher = processes.start(
-        "sim.launch", scenario, "--clock", clock, "--out", str(out), *transport.cli(), *extra,
-        name="launch",
+        "sim.launch", scenario, "--clock", clock, "--out", str(out), *transport.cli(),
+        "--timeout", f"{RUN_TIMEOUT * SLOWDOWN:g}", *extra, name="launch",
     )  # fmt: skip
-    code = launcher.wait(200)
+    code = launcher.wait(RUN_TIMEOUT + 30.0)  # the run's time, then the nodes' stop
     return code, run_result(out, launcher)
 
 

@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 from support import ROOT, SLOWDOWN
 
+from controller.node import GIVE_UP_VARIABLE, STARTUP_VARIABLE
+
 DISTRIBUTION = "scara-fuzzy"
 SCRIPTS = Path(sysconfig.get_path("scripts"))
 COMMANDS = {
@@ -92,6 +94,17 @@ def test_a_bad_value_exits_2_naming_it(command: str, args: list[str], named: str
     done = run(command, *args, *transport)
     assert done.returncode == 2, (done.returncode, done.stdout, done.stderr)
     assert named in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize("variable", [GIVE_UP_VARIABLE, STARTUP_VARIABLE])
+def test_a_bad_lockstep_wait_in_the_environment_exits_2_naming_it(
+    variable: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(variable, "-1")
+    done = run("controller", "reference", "--clock", "lockstep", "--interface", "virtual")
+    assert done.returncode == 2, (done.returncode, done.stdout, done.stderr)
+    assert variable in done.stderr, done.stderr
     assert "Traceback" not in done.stderr
 
 

@@ -47,7 +47,14 @@ from hil_clients import (
     cantools_decode,
     write_capture,
 )
-from support import SLOWDOWN, Observer, Processes, Transport, hil_marks, wait_until
+from support import (
+    SLOWDOWN,
+    Observer,
+    Processes,
+    Transport,
+    hil_marks,
+    wait_while_growing,
+)
 
 from protocol.e2e import RESYNC_AFTER
 from protocol.messages import COMMAND, PLANT_STATUS, STATE_IDS, STEP, on_the_wire_command
@@ -148,6 +155,12 @@ def test_the_recording_holds_the_frames_candump_saw_over_its_span(
 def test_canplayer_replays_the_controller_side_into_a_plant_that_moves_as_in_the_run(
     captured_run: CapturedRun, processes: Processes, observer_on: Any, tmp_path: Path
 ) -> None:
+    """canplayer replays at the capture's pace and never waits for the plant, which has no
+    second chance at a frame: one StepSync lost and it never steps again (every later one
+    names a tick it has not reached). So the plant must not lose a frame to a full receive
+    queue while it is not scheduled (it asks for a large one in lockstep; the kernel's count
+    of what it dropped, ``receive_drops``, is in its result), and the wait for its last
+    answers lasts while it is still catching up."""
     replay = tmp_path / "controller_side.log"
     write_capture(replay, [f for f in captured_run.frames if f.frame_id in CONTROLLER_IDS])
     observer = observer_on(VCAN)
@@ -156,19 +169,27 @@ def test_canplayer_replays_the_controller_side_into_a_plant_that_moves_as_in_the
     )
     heard = observer.wait_for(lambda m: m.arbitration_id == PLANT_STATUS.frame_id, HEARD)
     assert heard is not None, processes.outputs()
+    span = captured_run.frames[-1].timestamp - captured_run.frames[0].timestamp
     played = subprocess.run(
         [can_util("canplayer"), "-I", str(replay)],
-        capture_output=True, text=True, timeout=40 * SLOWDOWN,
+        capture_output=True, text=True, timeout=span + 40 * SLOWDOWN,
     )  # fmt: skip
     assert played.returncode == 0, played.stderr
     expected = trajectory(original_frames(captured_run))
-    wait_until(
-        lambda: len(trajectory(observer.frames())) >= len(expected),
+    wait_while_growing(
+        lambda: len(trajectory(observer.frames())),
+        len(expected),
         5.0,
-        "the plant's answers to the last frames",
+        "the plant's answers to the replayed frames",
     )
     assert plant.interrupt(30) == 0, plant.output()
-    received = json.loads((tmp_path / "replay" / "plant_sim.json").read_text())["e2e"]
+    result = json.loads((tmp_path / "replay" / "plant_sim.json").read_text())
+    received = {key: result[key] for key in ("e2e", "receive_drops", "stats")}
+    assert result["receive_drops"] == 0, (
+        f"the kernel dropped {result['receive_drops']} frames of the replay (None: it did not "
+        f"say) for want of room in the plant's receive queue: canplayer does not wait for the "
+        f"plant; {received}"
+    )
     assert trajectory(observer.frames()) == expected, received
     assert len(expected) > len(read_run(captured_run.out).log.data) / 2
 

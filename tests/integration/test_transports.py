@@ -23,8 +23,15 @@ import numpy as np
 import pytest
 from support import LATE_DETOUR, ROOT, SLOWDOWN, frame
 
-from controller.node import ControllerNode
+from controller.node import (
+    GIVE_UP_VARIABLE,
+    LOCKSTEP_GIVE_UP,
+    LOCKSTEP_STARTUP,
+    STARTUP_VARIABLE,
+    ControllerNode,
+)
 from plant_sim.node import PlantNode
+from protocol.errors import ConfigError
 from protocol.node import ClockMode
 from protocol.scenario import Mode, Scenario, load_scenario
 from sim.measures import compute_measures
@@ -156,10 +163,7 @@ def test_lockstep_over_udp_multicast_in_a_namespace(tmp_path: Path) -> None:
     assert result["e2e"]["corrupt"] == 0
 
 
-def test_lockstep_controller_faults_when_the_plant_goes_away(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    monkeypatch.setattr("controller.node.LOCKSTEP_GIVE_UP", 0.2)
+def test_lockstep_controller_faults_when_the_plant_goes_away() -> None:
     scenario = load_scenario("reference")
     plant_bus = can.Bus(interface="virtual", channel="lockstep-gone")
     controller_bus = can.Bus(interface="virtual", channel="lockstep-gone")
@@ -168,7 +172,9 @@ def test_lockstep_controller_faults_when_the_plant_goes_away(
     server.start()
     try:
         controller = ControllerNode(controller_bus, scenario, ClockMode.LOCKSTEP)
-        controller.run_lockstep(startup_timeout=5.0 * SLOWDOWN, max_wall_time=20.0 * SLOWDOWN)
+        controller.run_lockstep(
+            startup_timeout=5.0 * SLOWDOWN, max_wall_time=20.0 * SLOWDOWN, give_up=0.2
+        )
     finally:
         server.join(timeout=5.0 * SLOWDOWN)
         plant_bus.shutdown()
@@ -176,3 +182,28 @@ def test_lockstep_controller_faults_when_the_plant_goes_away(
     assert not controller.finished
     assert controller.tick > 0
     assert controller.result()["faults"] == ["STALE_STATE"]
+
+
+def test_the_lockstep_waits_are_the_environments_where_set(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    for variable in (GIVE_UP_VARIABLE, STARTUP_VARIABLE):  # (the tests may stretch them)
+        monkeypatch.delenv(variable, raising=False)
+    scenario = load_scenario("reference")
+    bus = can.Bus(interface="virtual", channel="lockstep-waits")
+    try:
+        default = ControllerNode(bus, scenario, ClockMode.LOCKSTEP)
+        assert (default.lockstep_give_up, default.lockstep_startup) == (
+            LOCKSTEP_GIVE_UP,
+            LOCKSTEP_STARTUP,
+        )
+        monkeypatch.setenv(GIVE_UP_VARIABLE, "2.5")
+        monkeypatch.setenv(STARTUP_VARIABLE, " 45 ")
+        stretched = ControllerNode(bus, scenario, ClockMode.LOCKSTEP)
+        assert (stretched.lockstep_give_up, stretched.lockstep_startup) == (2.5, 45.0)
+        monkeypatch.setenv(GIVE_UP_VARIABLE, "inf")
+        with pytest.raises(ConfigError, match=GIVE_UP_VARIABLE):
+            ControllerNode(bus, scenario, ClockMode.LOCKSTEP)
+        ControllerNode(bus, scenario, ClockMode.REALTIME)  # not read in real time
+    finally:
+        bus.shutdown()

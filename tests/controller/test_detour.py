@@ -1,0 +1,129 @@
+"""Which way round the obstacle the arm can take (controller/detour.py), and the plan check
+that refuses a task with a segment neither way can take round."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.detour import passable, ways_round
+from controller.planner import check_plan
+from protocol.config import RobotConfig
+from protocol.errors import NoWayRoundError
+from protocol.geometry import EllipticCylinder
+from protocol.kinematics import Elbow, reach_radii
+from protocol.messages import Reason, reason_of
+from protocol.ops import ARRAY, SCALAR
+from protocol.scenario import Mode, Scenario, Waypoint
+from sim.simulation import simulate
+
+ROBOT = RobotConfig()
+INNER, OUTER = reach_radii(ROBOT)
+
+
+def across(radius: float, diameter: float, long: float | None = None) -> EllipticCylinder:
+    """An obstacle centred on the x axis at ``radius``, its long axis along it."""
+    return EllipticCylinder(radius, 0.0, long or diameter, diameter, 0.3, 0.0, 0.02)
+
+
+def test_in_the_open_both_ways_round_are_passable() -> None:
+    ways = ways_round(ROBOT, across(0.42, 0.06), (0.42, -0.15, 0.2), (0.42, 0.15, 0.2), Elbow.DOWN)
+    assert ways == (True, True)
+
+
+def test_a_move_that_passes_the_obstacle_or_goes_over_it_needs_no_way_round() -> None:
+    obstacle = across(0.42, 0.06)
+    assert ways_round(ROBOT, obstacle, (0.3, -0.15, 0.2), (0.3, 0.15, 0.2), Elbow.DOWN) is None
+    high = obstacle.section().top + 0.01
+    assert ways_round(ROBOT, obstacle, (0.42, -0.15, high), (0.42, 0.15, high), Elbow.DOWN) is None
+
+
+def test_next_to_the_inner_reach_limit_only_the_outer_way_is_open() -> None:
+    """Moving anticlockwise (+y) past an obstacle whose edge nearly touches the circle where
+    theta2 meets its stop: the way on the left (nearer the base) is closed."""
+    diameter = 0.06
+    radius = INNER + diameter / 2.0 + 0.02 + 0.015 + 0.005  # aim's edge 5 mm off the limit
+    ways = ways_round(
+        ROBOT,
+        across(radius, diameter).grown(0.015),
+        (radius, -0.15, 0.2),
+        (radius, 0.15, 0.2),
+        Elbow.DOWN,
+    )
+    assert ways == (False, True)
+
+
+def test_an_obstacle_across_the_whole_annulus_leaves_no_way_round() -> None:
+    long = OUTER - INNER + 0.1
+    ways = ways_round(
+        ROBOT,
+        across((INNER + OUTER) / 2.0, 0.06, long),
+        ((INNER + OUTER) / 2.0, -0.15, 0.2),
+        ((INNER + OUTER) / 2.0, 0.15, 0.2),
+        Elbow.DOWN,
+    )
+    assert ways == (False, False)
+
+
+def test_a_task_with_no_way_round_is_refused_naming_its_segment() -> None:
+    middle = (INNER + OUTER) / 2.0
+    task = Scenario(
+        name="sealed",
+        waypoints=(
+            Waypoint(0.0, 0.3, -0.3, 0.2),
+            Waypoint(2.0, middle, -0.15, 0.2),
+            Waypoint(4.0, middle, 0.15, 0.2),
+        ),
+        obstacle=across(middle, 0.06, OUTER - INNER + 0.1),
+    )
+    with pytest.raises(NoWayRoundError, match=r"waypoints\[1\.\.2\]: no way round the obstacle"):
+        check_plan(task)
+    try:
+        check_plan(task)
+    except NoWayRoundError as error:
+        assert reason_of(error) is Reason.NO_WAY_ROUND
+
+
+@pytest.mark.parametrize("side", [1, -1])
+def test_floats_and_arrays_agree(side: int) -> None:
+    """The controller checks a way on floats, the study on arrays: the same answers, over
+    obstacles from the inner reach limit outwards."""
+    rng = np.random.default_rng(1)
+    radii = rng.uniform(INNER + 0.04, INNER + 0.14, 60)
+    obstacles = [across(radius, 0.06).grown(0.015).section() for radius in radii]
+    starts = np.column_stack([radii, np.full(60, -0.2)]) + rng.uniform(-0.05, 0.05, (60, 2))
+    goals = np.column_stack([radii, np.full(60, 0.2)]) + rng.uniform(-0.05, 0.05, (60, 2))
+    scalar = [
+        bool(passable(SCALAR, ROBOT, section, tuple(start), tuple(goal), side, 1.0))
+        for section, start, goal in zip(obstacles, starts.tolist(), goals.tolist(), strict=True)
+    ]
+    sections = type(obstacles[0])(*(np.array(values) for values in zip(*obstacles, strict=True)))
+    array = passable(
+        ARRAY, ROBOT, sections, (starts[:, 0], starts[:, 1]), (goals[:, 0], goals[:, 1]), side, 1.0
+    )
+    assert array.tolist() == scalar
+    if side == 1:  # the way nearer the base: open for the obstacles farther out only
+        assert 0 < sum(scalar) < 60
+
+
+@pytest.mark.parametrize("mode", list(Mode))
+def test_an_obstacle_at_the_inner_reach_limit_is_passed_on_the_outer_side(mode: Mode) -> None:
+    """The users' defect: an obstacle whose inflated edge touches the circle where theta2
+    meets its stop. AO's side away from the nearer edge was the base's, where the arm cannot
+    go; it slid along its stop into the obstacle. Now it goes round the outer side."""
+    diameter = 0.08
+    radius = INNER + diameter / 2.0 + 0.02  # the inflated edge on the inner limit
+    task = Scenario(
+        name="inner-limit",
+        waypoints=(
+            Waypoint(0.0, radius, -0.2, 0.2),
+            Waypoint(2.0, radius, 0.2, 0.2),
+            Waypoint(3.5, radius + 0.1, 0.25, 0.2),
+        ),
+        obstacle=across(radius, diameter),
+    )
+    check_plan(task)
+    measures = simulate(task, mode).measures
+    assert measures.collision_free
+    assert measures.min_clearance > 0.01  # round the aim, not pinned against the stop
+    assert max(measures.waypoint_miss) < 0.002
