@@ -20,8 +20,9 @@ Lockstep: per tick it sends the command and a StepSync naming it, then waits for
 answer. A lost or corrupt frame costs a retry, never a wrong step, so the run is
 bit-identical to the in-process simulation.
 
-A run ends as :mod:`controller.run_end` says: its task done (back to ready), or its timeout
-reached on the run's clock (latched fault TASK_TIMEOUT, braking). A NodeCommand ``reset``
+A run ends as :mod:`controller.run_end` says: its task done (back to ready), its timeout
+reached on the run's clock, or no safe motion left (latched fault TASK_TIMEOUT or
+NO_SAFE_MOTION, braking). A NodeCommand ``reset``
 restarts the scenario from the plant's present state; an EmergencyStop latches e-stop until a
 reset.
 """
@@ -330,7 +331,8 @@ class ControllerNode(Node):
     # --- one control step ----------------------------------------------------------------------
 
     def _control(self, state: JointState) -> ControlOutput:
-        """One control step; a run that times out at it latches TASK_TIMEOUT."""
+        """One control step; a run that ends at it other than done latches the fault of its
+        outcome's name (TASK_TIMEOUT, NO_SAFE_MOTION)."""
         start = self.scenario.waypoints[0].t
         t = start + self.tick * self.period
         output = self.law.step(t, state.position)
@@ -341,8 +343,8 @@ class ControllerNode(Node):
         code = ending(SCALAR, self.end, law.reached, output, state.velocity, self.tick, self.slot)
         if code:
             self.outcome = OUTCOMES[code - 1]
-            if self.outcome is RunOutcome.TASK_TIMEOUT:
-                self.enter_fault(ControllerFault.TASK_TIMEOUT)
+            if self.outcome is not RunOutcome.DONE:
+                self.enter_fault(ControllerFault[self.outcome.name])
         self.tick += 1
         self._last_output = output
         waypoints = self.scenario.waypoints
@@ -366,15 +368,15 @@ class ControllerNode(Node):
 
     @property
     def done(self) -> bool:
-        """The loop has nothing more to do: the run ended (its task done, or timed out)."""
+        """The loop has nothing more to do: the run ended (:mod:`controller.run_end`)."""
         return self.outcome is not None
 
     def serve(self, now: float) -> None:
         """Work of a tick beside control, after the frames were taken (the service's)."""
 
     def on_run_end(self) -> None:
-        """The run ended: idle again once its task is done (a timeout's fault stays latched;
-        the next status frame says which)."""
+        """The run ended: idle again once its task is done (another outcome's fault stays
+        latched; the next status frame says which)."""
         if self.finished:
             self.node_state = NodeState.READY
 
@@ -429,7 +431,7 @@ class ControllerNode(Node):
         state = self.state
         if self.node_state is NodeState.RUNNING and state is not None:
             output = self._control(state)
-            if self.node_state is NodeState.RUNNING:  # not timed out
+            if self.node_state is NodeState.RUNNING:  # not ended in a fault
                 counter = self._send_command(output.command, True)
                 self._awaiting[counter] = self.wall_clock()
                 self.stats.ticks += 1
@@ -507,7 +509,7 @@ class ControllerNode(Node):
                 return
             output = self._control(state)
             self.slot += 1
-            if self.node_state is not NodeState.RUNNING:  # timed out
+            if self.node_state is not NodeState.RUNNING:  # ended in a fault
                 break
             answer = self._exchange(self.tick, output.command, self.clock() + give_up)
             if answer is None:

@@ -1,4 +1,4 @@
-"""When a run ends: its task done, or its timeout reached.
+"""When a run ends: its task done, its timeout reached, or no safe motion left.
 
 Written once over :mod:`protocol.ops`, like the law: the simulation and the controller node
 run it on floats after each tick, the batch on arrays of runs. The task is done when every
@@ -9,7 +9,8 @@ SETTLED_SPEEDS. A run ends at the first tick at or after the plan's end (the las
 time plus the settling time) at which its task is done, so a run done on time ends on the
 tick it always did, and one that a detour made late goes on; a run not done by its timeout
 (:attr:`protocol.scenario.Scenario.time_limit`, on the run's clock) ends there, in the fault
-TASK_TIMEOUT.
+TASK_TIMEOUT. A run ends at once, in the fault NO_SAFE_MOTION, on the tick the safety filter
+finds no command that keeps the arm off the obstacle (:mod:`controller.safety`).
 """
 
 from __future__ import annotations
@@ -36,12 +37,14 @@ class RunOutcome(StrEnum):
     """Every waypoint passed and the arm settled at the last."""
     TASK_TIMEOUT = "task_timeout"
     """The run's timeout came first."""
+    NO_SAFE_MOTION = "no_safe_motion"
+    """The safety filter found no command that keeps the arm off the obstacle."""
     CUT_SHORT = "cut_short"
     """Ended otherwise, before either: a stop, another fault, an e-stop, the process stopped
     (only a co-simulation's run)."""
 
 
-OUTCOMES = (RunOutcome.DONE, RunOutcome.TASK_TIMEOUT)
+OUTCOMES = (RunOutcome.DONE, RunOutcome.TASK_TIMEOUT, RunOutcome.NO_SAFE_MOTION)
 """How a run ended, by the code :func:`ending` gives, less one (0: it goes on)."""
 
 
@@ -111,4 +114,4 @@ def ending(
     it goes on: see OUTCOMES. (The rest as for :func:`task_done`.)"""
     done = task_done(ops, end, reached, output, joint_velocity) & (tick >= end.end_tick)
     timed_out = ops.not_(done) & (clock_tick >= end.limit_tick)
-    return ops.where(done, 1, ops.where(timed_out, 2, 0))
+    return ops.where(output.no_safe_motion, 3, ops.where(done, 1, ops.where(timed_out, 2, 0)))

@@ -137,7 +137,7 @@ class ServiceNode(ControllerNode):
         return super().result() | {"runs": self.runs, "completed": self.runs > 0 and self.finished}
 
     def _end_run(self) -> None:
-        """Back to idle (a timed-out run stays in its fault); the run's result and log
+        """Back to idle (a run that ended in a fault stays in it); the run's result and log
         written to ``out``, if given."""
         if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
             self.node_state = NodeState.READY

@@ -9,9 +9,9 @@ every logged column of every tick against the scalar simulation.
 
 Runs in one batch share the robot, the gains and the plant model; they differ in mode,
 waypoints (a shorter plan is padded with its last stage), obstacle (a run without one gets a
-section no TCP is ever below) and length: each run ends as :mod:`controller.run_end` says,
-its task done or its timeout reached, and then leaves the arrays soon after (no longer
-counted in its measures meanwhile).
+section no TCP is ever below) and length: each run ends as :mod:`controller.run_end` says
+(its task done, its timeout reached, or no safe motion left), and then leaves the arrays
+soon after (no longer counted in its measures meanwhile).
 """
 
 from __future__ import annotations

@@ -39,8 +39,8 @@ JERK_WINDOW = 15
 @dataclass(frozen=True, slots=True)
 class Measures:
     outcome: RunOutcome
-    """How the run ended: its task done, its timeout reached, or (a co-simulation) cut
-    short; the run's driver knows it, not the log."""
+    """How the run ended: its task done, its timeout reached, no safe motion left, or (a
+    co-simulation) cut short; the run's driver knows it, not the log."""
     collision_free: bool
     min_clearance: float
     stops: int

@@ -29,7 +29,7 @@ class SimulationRun:
 
 def simulate(scenario: Scenario, mode: Mode | None = None) -> SimulationRun:
     """Run ``scenario`` (in ``mode`` if given) from its first waypoint until it ends
-    (:mod:`controller.run_end`): its task done, or its timeout reached."""
+    (:mod:`controller.run_end`): its task done, its timeout reached, or no safe motion left."""
     if mode is not None:
         scenario = scenario.with_mode(mode)
     law = ControlLaw.for_scenario(scenario)

@@ -5,12 +5,14 @@ checks and e-stop."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import can
 import pytest
 from support import FakeClock, frame
 
 from controller.node import STALE_TICKS, ControllerNode
+from controller.safety import Filtered, filtered
 from protocol.codec import WIRE
 from protocol.errors import ConfigError
 from protocol.messages import NODE_COMMAND, STATE, STOP, ControllerFault, NodeState
@@ -219,3 +221,28 @@ def test_a_run_goes_on_past_its_plan_until_its_timeout_then_latches_task_timeout
     tick(controller, clock)
     assert controller.node_state is NodeState.FAULT and controller.tick == limit + 1
     assert commands(peer) == [(0, 0.0, 0.0, 0.0)]
+
+
+def test_no_safe_motion_during_a_run_latches_its_fault_and_brakes(
+    virtual_pair: tuple[can.BusABC, can.BusABC], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The safety filter finds no safe command from the 50th tick of the run on."""
+    node_bus, peer = virtual_pair
+    clock = FakeClock()
+    controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
+
+    def unsafe_late(ops: Any, wanted: Any, box: Any, barrier: Any) -> Filtered:
+        return Filtered(filtered(ops, wanted, box, barrier).command, controller.tick >= 50)
+
+    monkeypatch.setattr("controller.control_law.filtered", unsafe_late)
+    counter = start_running(peer, controller, clock, ticks=50)
+    assert controller.node_state is NodeState.RUNNING
+    assert commands(peer)[-1][0] == 1  # moving
+    send_state(peer, counter)
+    tick(controller, clock)
+    assert controller.node_state is NodeState.FAULT
+    assert controller.fault == ControllerFault.NO_SAFE_MOTION
+    assert commands(peer) == [(0, 0.0, 0.0, 0.0)]  # braking, not the tick's command
+    result = controller.result()
+    assert result["outcome"] == "no_safe_motion" and result["faults"] == ["NO_SAFE_MOTION"]
+    assert not result["completed"] and controller.done and controller.exit_code == 1

@@ -30,6 +30,7 @@ from controller.node import (
     STARTUP_VARIABLE,
     ControllerNode,
 )
+from controller.run_end import RunOutcome
 from plant_sim.node import PlantNode
 from protocol.errors import ConfigError
 from protocol.node import ClockMode
@@ -96,6 +97,18 @@ def test_lockstep_of_a_late_run_ends_as_the_simulations(timed_out: bool) -> None
     assert result["completed"] is not timed_out
     assert result["faults"] == (["TASK_TIMEOUT"] if timed_out else [])
     assert controller.exit_code == int(timed_out)
+
+
+@pytest.mark.usefixtures("no_safe_motion_near")
+def test_lockstep_without_safe_motion_faults_on_the_simulations_tick() -> None:
+    scenario = load_scenario(LATE_DETOUR)
+    controller = lockstep_on_virtual(scenario, "lockstep-unsafe")
+    expected = simulate(scenario)
+    assert controller.outcome is expected.measures.outcome is RunOutcome.NO_SAFE_MOTION
+    assert np.array_equal(controller.log_rows.data, expected.log.data)
+    result = controller.result()
+    assert result["outcome"] == "no_safe_motion" and result["faults"] == ["NO_SAFE_MOTION"]
+    assert result["state"] == "FAULT" and controller.exit_code == 1
 
 
 class Flooded(can.BusABC):

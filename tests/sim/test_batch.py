@@ -184,6 +184,16 @@ def test_runs_leave_a_batch_when_each_ends_as_in_the_scalar_simulation() -> None
     assert max(result.measures.max_waypoint_miss for result in batch[:2]) <= WAYPOINT_TOLERANCE
 
 
+@pytest.mark.usefixtures("no_safe_motion_near")
+def test_runs_without_safe_motion_leave_a_batch_as_in_the_scalar_simulation() -> None:
+    """Each on its own tick, a run on time (no_obstacle) beside them."""
+    chosen = [load_scenario(name) for name in ("reference", "no_obstacle")]
+    chosen.append(load_scenario(LATE_DETOUR))
+    batch = batch_against_scalar(chosen)
+    outcomes = [result.measures.outcome for result in batch]
+    assert outcomes == [RunOutcome.NO_SAFE_MOTION, RunOutcome.DONE, RunOutcome.NO_SAFE_MOTION] * 2
+
+
 def test_a_run_does_not_depend_on_the_rest_of_its_batch(study: list[Scenario]) -> None:
     short = sorted(study, key=lambda scenario: scenario.duration)[:4]
     alone = simulate_batch(short[:1], Mode.CONVENTIONAL)

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import UNSAFE_WITHIN
 from support import LATE_DETOUR
 
 from controller.run_end import SETTLED_SPEEDS, RunOutcome
@@ -218,6 +219,16 @@ def test_a_run_not_done_by_its_timeout_ends_there_reported_as_such() -> None:
     assert run.measures.outcome is RunOutcome.TASK_TIMEOUT
     assert len(run.log) == round(scenario.time_limit / scenario.controller.period) + 1
     assert run.measures.max_waypoint_miss > WAYPOINT_TOLERANCE
+
+
+@pytest.mark.usefixtures("no_safe_motion_near")
+def test_a_run_ends_on_the_tick_the_safety_filter_finds_no_safe_motion() -> None:
+    scenario = load_scenario(LATE_DETOUR)
+    plan_end = round(scenario.duration / scenario.controller.period) + 1
+    run = simulate(scenario, Mode.FUZZY)
+    assert run.measures.outcome is RunOutcome.NO_SAFE_MOTION
+    assert len(run.log) < plan_end
+    assert run.log["clearance"][-1] <= UNSAFE_WITHIN + 0.002 < run.log["clearance"][0]
 
 
 def test_a_run_done_on_time_ends_at_the_plans_end(
