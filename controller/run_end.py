@@ -31,7 +31,9 @@ steps of 0.001 rad/s and 0.0001 m/s."""
 
 
 class RunOutcome(StrEnum):
-    """How a run ended (its measures and the controller's result say so)."""
+    """How a run ended (its measures and the controller's result say so). An outcome that
+    ends a run in a fault bears the name of that fault (``protocol.messages.ControllerFault``,
+    the DBC's)."""
 
     DONE = "done"
     """Every waypoint passed and the arm settled at the last."""
@@ -40,8 +42,8 @@ class RunOutcome(StrEnum):
     NO_SAFE_MOTION = "no_safe_motion"
     """The safety filter found no command that keeps the arm off the obstacle."""
     CUT_SHORT = "cut_short"
-    """Ended otherwise, before either: a stop, another fault, an e-stop, the process stopped
-    (only a co-simulation's run)."""
+    """Ended otherwise, before any of those: a stop, another fault, an e-stop, the process
+    stopped (only a co-simulation's run)."""
 
 
 OUTCOMES = (RunOutcome.DONE, RunOutcome.TASK_TIMEOUT, RunOutcome.NO_SAFE_MOTION)
