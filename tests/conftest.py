@@ -25,6 +25,7 @@ import pytest
 from hypothesis import settings
 from support import (
     SLOWDOWN,
+    UNSAFE_WITHIN,
     Observer,
     Processes,
     Transport,
@@ -151,10 +152,6 @@ def virtual_pair() -> Iterator[tuple[can.BusABC, can.BusABC]]:
     yield node_bus, peer
     node_bus.shutdown()
     peer.shutdown()
-
-
-UNSAFE_WITHIN = 0.02
-"""m: how near the inflated obstacle ``no_safe_motion_near`` lets the arm come (about)."""
 
 
 @pytest.fixture

@@ -7,8 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import UNSAFE_WITHIN
-from support import LATE_DETOUR
+from support import LATE_DETOUR, UNSAFE_WITHIN
 
 from controller.run_end import SETTLED_SPEEDS, RunOutcome
 from controller.runlog import COLUMN, RunLog
