@@ -20,8 +20,11 @@ Lockstep: per tick it sends the command and a StepSync naming it, then waits for
 answer. A lost or corrupt frame costs a retry, never a wrong step, so the run is
 bit-identical to the in-process simulation.
 
-A NodeCommand ``reset`` restarts the scenario from the plant's present state; an
-EmergencyStop latches e-stop until a reset.
+A run ends as :mod:`controller.run_end` says: its task done (back to ready), its timeout
+reached on the run's clock, or no safe motion left (latched fault TASK_TIMEOUT or
+NO_SAFE_MOTION, braking). A NodeCommand ``reset``
+restarts the scenario from the plant's present state; an EmergencyStop latches e-stop until a
+reset.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ import numpy as np
 from controller.behaviours import TURN_LEFT, TURN_RIGHT
 from controller.control_law import ControlLaw, ControlOutput
 from controller.loop_stats import LoopStats
+from controller.run_end import OUTCOMES, RunOutcome, ending, run_end_of
 from controller.runlog import COLUMNS, RunLog, row_of
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError, EncodeError
@@ -64,6 +68,7 @@ from protocol.messages import (
     command_record,
 )
 from protocol.node import ClockMode, Node
+from protocol.ops import SCALAR
 from protocol.scenario import WAYPOINT_TOLERANCE, Mode, Scenario, scenario_document
 
 STALE_TICKS = 3
@@ -199,6 +204,8 @@ class ControllerNode(Node):
         self._echoed = 0
         """Lockstep: the command (index in ``_commands``) the last answer echoed, at least."""
         self.ticks_to_run = self.tick = self.slot = 0  # no run prepared yet
+        self.outcome: RunOutcome | None = None
+        """How the run prepared last ended (None: it has not)."""
         self._next_waypoint = self._approach = 0
         self._last_output: ControlOutput | None = None
         self.log_rows: RunLog | None = None
@@ -218,7 +225,10 @@ class ControllerNode(Node):
         """Make ``scenario`` the one to run, from its start; ``approach`` is how many of its
         first waypoints were added to reach the task (not the task's own)."""
         self.scenario = scenario
-        self.ticks_to_run = round(scenario.duration / self.period) + 1
+        self.end = run_end_of(scenario)
+        self.ticks_to_run = self.end.end_tick + 1
+        """Ticks of a run done on time (a late one goes on, up to its timeout)."""
+        self.outcome = None
         self.law = ControlLaw.for_scenario(scenario)
         self.log_rows = RunLog(min(self.ticks_to_run, PREALLOCATED_ROWS))
         self.stats = LoopStats(self.period)
@@ -309,7 +319,9 @@ class ControllerNode(Node):
             Behaviour=_behaviour(output) if moving and output is not None else Behaviour.NONE,
             Holds=min(self.stats.holds, 0xFFFF),
             Waypoint=min(self.waypoints_reached, 0xFF),
-            Progress=min(100, round(100 * self.tick / max(self.ticks_to_run, 1))),
+            Progress=100
+            if self.finished
+            else min(99, round(100 * self.tick / max(self.ticks_to_run, 1))),
             LatenessMax=min(round(self._late_max * 1e6), 0xFFFF),
         )
         self._late_max = 0.0
@@ -319,12 +331,20 @@ class ControllerNode(Node):
     # --- one control step ----------------------------------------------------------------------
 
     def _control(self, state: JointState) -> ControlOutput:
+        """One control step; a run that ends at it other than done latches the fault of its
+        outcome's name (TASK_TIMEOUT, NO_SAFE_MOTION)."""
         start = self.scenario.waypoints[0].t
         t = start + self.tick * self.period
         output = self.law.step(t, state.position)
         clock = start + self.slot * self.period
         if self.log_rows is not None:  # always, once a run is prepared
             self.log_rows.append(row_of(t, state.position, state.velocity, output, clock))
+        law = self.law.state
+        code = ending(SCALAR, self.end, law.reached, output, state.velocity, self.tick, self.slot)
+        if code:
+            self.outcome = OUTCOMES[code - 1]
+            if self.outcome is not RunOutcome.DONE:
+                self.enter_fault(ControllerFault[self.outcome.name])
         self.tick += 1
         self._last_output = output
         waypoints = self.scenario.waypoints
@@ -343,19 +363,22 @@ class ControllerNode(Node):
 
     @property
     def finished(self) -> bool:
-        return self.tick >= self.ticks_to_run
+        """The run's task is done."""
+        return self.outcome is RunOutcome.DONE
 
     @property
     def done(self) -> bool:
-        """The loop has nothing more to do: the scenario ran to its end."""
-        return self.finished
+        """The loop has nothing more to do: the run ended (:mod:`controller.run_end`)."""
+        return self.outcome is not None
 
     def serve(self, now: float) -> None:
         """Work of a tick beside control, after the frames were taken (the service's)."""
 
-    def on_run_complete(self) -> None:
-        """The run reached its end: idle again (the next status frame says so)."""
-        self.node_state = NodeState.READY
+    def on_run_end(self) -> None:
+        """The run ended: idle again once its task is done (another outcome's fault stays
+        latched; the next status frame says which)."""
+        if self.finished:
+            self.node_state = NodeState.READY
 
     # --- real time -----------------------------------------------------------------------------
 
@@ -408,11 +431,14 @@ class ControllerNode(Node):
         state = self.state
         if self.node_state is NodeState.RUNNING and state is not None:
             output = self._control(state)
-            counter = self._send_command(output.command, True)
-            self._awaiting[counter] = self.wall_clock()
-            self.stats.ticks += 1
-            if self.finished:
-                self.on_run_complete()
+            if self.node_state is NodeState.RUNNING:  # not ended in a fault
+                counter = self._send_command(output.command, True)
+                self._awaiting[counter] = self.wall_clock()
+                self.stats.ticks += 1
+            else:
+                self.send_zero()
+            if self.outcome is not None:
+                self.on_run_end()
         else:
             self.send_zero()
         if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
@@ -475,7 +501,7 @@ class ControllerNode(Node):
         self._commands = [state.echo]
         self._echoed = 0
         self.node_state = NodeState.RUNNING
-        while self.running and not self.finished:
+        while self.running and not self.done:
             if self.node_state is not NodeState.RUNNING or (
                 max_wall_time is not None and self.clock() - started > max_wall_time
             ):
@@ -483,6 +509,8 @@ class ControllerNode(Node):
                 return
             output = self._control(state)
             self.slot += 1
+            if self.node_state is not NodeState.RUNNING:  # ended in a fault
+                break
             answer = self._exchange(self.tick, output.command, self.clock() + give_up)
             if answer is None:
                 if self.running and self.node_state is NodeState.RUNNING:
@@ -492,8 +520,10 @@ class ControllerNode(Node):
                 return
             state = answer
             self.stats.ticks += 1
-        if self.finished:
-            self.on_run_complete()
+        if self.done:
+            if not self.finished:
+                self.send_zero()
+            self.on_run_end()
             self.send_status_if_due(self.clock())
 
     def _exchange(self, tick: int, rates: Joints | None, give_up: float) -> JointState | None:
@@ -578,6 +608,7 @@ class ControllerNode(Node):
             "clock": self.clock_mode.value,
             "rate_hz": self.scenario.controller.rate_hz,
             "completed": self.finished,
+            "outcome": self.outcome or (RunOutcome.CUT_SHORT if self.tick else None),
             "loop": self.stats.summary(),
             "realtime_factor": self.tick * self.period / run_time,
         }

@@ -129,7 +129,7 @@ class ServiceNode(ControllerNode):
     def exit_code(self) -> int:
         return 0 if not self.fault else 1
 
-    def on_run_complete(self) -> None:
+    def on_run_end(self) -> None:
         self._end_run()
 
     def result(self) -> dict[str, Any]:
@@ -137,10 +137,12 @@ class ServiceNode(ControllerNode):
         return super().result() | {"runs": self.runs, "completed": self.runs > 0 and self.finished}
 
     def _end_run(self) -> None:
-        """Back to idle; the run's result and log written to ``out``, if given."""
-        self.node_state = NodeState.READY
+        """Back to idle (a run that ended in a fault stays in it); the run's result and log
+        written to ``out``, if given."""
+        if self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+            self.node_state = NodeState.READY
         self.runs += 1
-        self.log.info("run %d ended (%s)", self.runs, "completed" if self.finished else "stopped")
+        self.log.info("run %d ended (%s)", self.runs, self.outcome or "stopped")
         if self.out is not None:
             self.out.mkdir(parents=True, exist_ok=True)
             self.save(self.out, self.result())
@@ -272,13 +274,16 @@ class ServiceNode(ControllerNode):
 def with_approach(task: Scenario, tcp: tuple[float, float, float]) -> tuple[Scenario, int]:
     """``task`` preceded by a segment from ``tcp`` to its first waypoint (at
     :data:`APPROACH_SPEED`, :data:`MIN_APPROACH` at least), and how many waypoints that added
-    (0 when the arm is already there). :class:`ConfigError` if that segment is not a path."""
+    (0 when the arm is already there); a timeout the task sets is lengthened by the segment's
+    time (the default follows the waypoints). :class:`ConfigError` if that segment is not a
+    path."""
     first = task.waypoints[0]
     distance = math.dist(tcp, (first.x, first.y, first.z))
     if distance < ALREADY_THERE:
         return task, 0
     lead = max(MIN_APPROACH, distance / APPROACH_SPEED)
     start = Waypoint(first.t - lead, *tcp)
-    run = replace(task, waypoints=(start, *task.waypoints))
+    timeout = None if task.timeout is None else task.timeout + lead
+    run = replace(task, waypoints=(start, *task.waypoints), timeout=timeout)
     check_plan(run)
     return run, 1

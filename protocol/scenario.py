@@ -38,7 +38,11 @@ SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 WAYPOINT_TOLERANCE = 0.002
 """m: a waypoint counts as passed when the TCP comes this close."""
 MAX_DURATION = 3600.0
-"""s: the longest run a scenario may ask for (its waypoints' span plus the settling time)."""
+"""s: the longest a run may last: its timeout, and so its plan (the waypoints' span plus the
+settling time), are at most this. It bounds a run's log (500 Hz: 1.8 million rows)."""
+TIMEOUT_FACTOR = 2.0
+"""A scenario's default timeout is this many times its plan's span, plus the settling time
+(at most MAX_DURATION): far beyond what a detour costs on a feasible task."""
 DEFAULT_TOOL_RADIUS = 0.01
 DEFAULT_MARGIN = 0.01
 
@@ -66,6 +70,9 @@ class Scenario:
     mode: Mode = Mode.FUZZY
     elbow: Elbow = Elbow.DOWN
     settle_time: float = 1.0
+    timeout: float | None = None
+    """s from the first waypoint after which a run that is not done ends in a fault; None: the
+    default (:attr:`time_limit`)."""
     description: str = ""
     robot: RobotConfig = field(default_factory=RobotConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
@@ -80,6 +87,15 @@ class Scenario:
     def duration(self) -> float:
         """Planned time plus the settling time after the last waypoint."""
         return self.waypoints[-1].t - self.waypoints[0].t + self.settle_time
+
+    @property
+    def time_limit(self) -> float:
+        """The timeout in force: the scenario's own, else TIMEOUT_FACTOR times the plan's
+        span plus the settling time, at most MAX_DURATION."""
+        if self.timeout is not None:
+            return self.timeout
+        span = self.waypoints[-1].t - self.waypoints[0].t
+        return min(TIMEOUT_FACTOR * span + self.settle_time, MAX_DURATION)
 
     def with_mode(self, mode: Mode) -> Scenario:
         return replace(self, mode=mode)
@@ -128,8 +144,9 @@ def parse_scenario(document: Mapping[str, Any], default_name: str = "scenario") 
 
 def parse_task(document: Mapping[str, Any], base: Scenario) -> Scenario:
     """A scenario from a task document (what an operator sets: name, mode, waypoints,
-    obstacle, settling time, elbow) on ``base``'s robot, gains and plant model, checked as a
-    scenario file is. The JSON an operator sends over the wire (:func:`encode_task`)."""
+    obstacle, settling time, timeout, elbow) on ``base``'s robot, gains and plant model,
+    checked as a scenario file is. The JSON an operator sends over the wire
+    (:func:`encode_task`)."""
     check(document, "task.schema.json")
     task = _with_task(base, document, document.get("name", "task"))
     size = len(_task_payload(task, TICKET_MAX))
@@ -146,7 +163,8 @@ def parse_task(document: Mapping[str, Any], base: Scenario) -> Scenario:
 
 
 def task_document(scenario: Scenario) -> dict[str, Any]:
-    """The task part of ``scenario`` as a document :func:`parse_task` reads back."""
+    """The task part of ``scenario`` as a document :func:`parse_task` reads back (the
+    timeout only where the scenario sets one: the default follows the waypoints)."""
     document: dict[str, Any] = {
         "name": scenario.name,
         "mode": scenario.mode.value,
@@ -154,6 +172,8 @@ def task_document(scenario: Scenario) -> dict[str, Any]:
         "settle_time": scenario.settle_time,
         "waypoints": [{"t": w.t, "x": w.x, "y": w.y, "z": w.z} for w in scenario.waypoints],
     }
+    if scenario.timeout is not None:
+        document["timeout"] = scenario.timeout
     if scenario.obstacle is not None:
         document["obstacle"] = obstacle_document(scenario.obstacle, scenario.tool_radius)
     return document
@@ -230,6 +250,7 @@ def _with_task(base: Scenario, document: Mapping[str, Any], name: str) -> Scenar
         mode=Mode(document.get("mode", Mode.FUZZY.value)),
         elbow=Elbow.UP if document.get("elbow", "down") == "up" else Elbow.DOWN,
         settle_time=float(document.get("settle_time", 1.0)),
+        timeout=None if "timeout" not in document else float(document["timeout"]),
         description=document.get("description", ""),
         tool_radius=tool_radius,
     )
@@ -237,6 +258,13 @@ def _with_task(base: Scenario, document: Mapping[str, Any], name: str) -> Scenar
         raise ConfigError(
             "waypoints",
             f"the run would last {scenario.duration:g} s; at most {MAX_DURATION:g} s",
+        )
+    timeout = scenario.timeout
+    if timeout is not None and not scenario.duration <= timeout <= MAX_DURATION:
+        raise ConfigError(
+            "timeout",
+            f"{timeout:g} s must be at least the plan's {scenario.duration:g} s (the "
+            f"waypoints' span plus the settling time) and at most {MAX_DURATION:g} s",
         )
     check_scenario(scenario)
     return scenario

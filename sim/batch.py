@@ -9,8 +9,9 @@ every logged column of every tick against the scalar simulation.
 
 Runs in one batch share the robot, the gains and the plant model; they differ in mode,
 waypoints (a shorter plan is padded with its last stage), obstacle (a run without one gets a
-section no TCP is ever below) and duration (a finished run leaves the arrays soon after it
-ends, and is no longer counted in its measures meanwhile).
+section no TCP is ever below) and length: each run ends as :mod:`controller.run_end` says
+(its task done, its timeout reached, or no safe motion left), and then leaves the arrays
+soon after (no longer counted in its measures meanwhile).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from controller.control_law import LawState, Stage, first_state, law_of, stages_
 from controller.coordination import Coordination
 from controller.fuzzy import RuleBase
 from controller.planner import plan_of
+from controller.run_end import OUTCOMES, RunEnd, ending, run_end_of
 from plant_sim.model import integrate
 from protocol.array_ops import rebuilt, take
 from protocol.messages import joints_on_the_wire, rates_on_the_wire
@@ -125,7 +127,11 @@ class _Batch:
         config, plant = first.controller, first.plant
         self.period = config.period
         self.count = len(scenarios)
-        self.ticks = np.array([round(s.duration / self.period) + 1 for s in scenarios])
+        self.end: RunEnd = _stacked([run_end_of(s) for s in scenarios])
+        self.ticks = np.asarray(self.end.limit_tick + 1)
+        """Each run's ticks: at most up to its timeout, until it ends."""
+        self.ending = np.zeros(self.count, dtype=np.intp)
+        """How each run ended (:func:`controller.run_end.ending`'s code; 0: it goes on)."""
         self.start = np.array([s.waypoints[0].t for s in scenarios])
         coordination = Coordination.of(config.sensing_range, config.switch_distance, rule_base)
         plans = [plan_of(s) for s in scenarios]
@@ -158,6 +164,7 @@ class _Batch:
     def keep(self, rows: Index) -> None:
         """Only the runs ``rows`` from now on (the others have finished)."""
         self.ticks, self.start = self.ticks[rows], self.start[rows]
+        self.end, self.ending = take(self.end, rows), self.ending[rows]
         self.law, self.state = take(self.law, rows), take(self.state, rows)
         self.position, self.velocity = self.position[:, rows], self.velocity[:, rows]
         self.plans.keep(rows)
@@ -176,6 +183,10 @@ class _Batch:
         self.position, self.velocity, _ = integrate(
             ARRAY, self.position, self.velocity, command, limits, blend, substep, substeps
         )
+        code = ending(ARRAY, self.end, self.state.reached, output, velocity, tick, tick)
+        ends = (code != 0) & (self.ending == 0)
+        self.ending[ends] = code[ends]
+        self.ticks[ends] = tick + 1
         tcp = output.tcp
         return {
             "clock": t,
@@ -221,7 +232,9 @@ def trace_batch(scenarios: Sequence[Scenario], modes: Sequence[Mode]) -> list[di
     batch with the scalar law tick by tick; the runs are kept in the arrays to the end."""
     with np.errstate(all="ignore"):
         batch = _Batch(scenarios, _modes_of(scenarios, modes), None)
-        rows = [batch.step(tick) for tick in range(int(batch.ticks.max()))]
+        rows: list[dict[str, Array]] = []
+        while not batch.ending.all():
+            rows.append(batch.step(len(rows)))
     return [
         {name: np.array([row[name][index] for row in rows[:ticks]]) for name in rows[0]}
         for index, ticks in enumerate(batch.ticks.tolist())
@@ -265,6 +278,10 @@ def simulate_batch(
                 row = batch.step(block_start + offset)
                 for name in names:
                     block[name][offset] = row[name]
+                if batch.ending.all():  # every run has ended: so does the block
+                    length = offset + 1
+                    block = {name: values[:length] for name, values in block.items()}
+                    break
             ticks = np.arange(block_start, block_start + length)[:, None]
             valid = ticks < batch.ticks
             stream.update(block, valid)
@@ -276,8 +293,9 @@ def simulate_batch(
             if finished.sum() >= COMPACT_SHARE * batch.count:
                 # Finished runs leave the arrays: no more work is spent on them.
                 done, going = np.flatnonzero(finished), np.flatnonzero(~finished)
+                outcomes = [OUTCOMES[code - 1] for code in batch.ending[done]]
                 for index, measures, peak in zip(
-                    original[done], stream.measures(done), peak_k_c[done], strict=True
+                    original[done], stream.measures(outcomes, done), peak_k_c[done], strict=True
                 ):
                     runs[index] = BatchRun(measures, float(peak))
                 batch.keep(going)

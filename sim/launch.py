@@ -54,7 +54,8 @@ from sim.report import LOG_FILE, RECORDING, format_report, read_run
 STOP_GRACE = 5.0
 """s a process gets to exit after SIGINT before it is killed."""
 REALTIME_SLACK = 10.0
-"""s a real-time run may take beyond twice the scenario's duration (start-up, holds)."""
+"""s a real-time controller may take beyond its run's timeout (start-up, a hold before the
+run's first joint state)."""
 ROUTER_START = 10.0
 """s the router gets to answer after it was started."""
 SECURE_CONFIG = Path(__file__).resolve().parent.parent / "config" / "zenoh" / "secure-router.json5"
@@ -141,11 +142,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str], list[str]]:
+def node_commands(args: argparse.Namespace, time_limit: float) -> tuple[list[str], list[str]]:
     """The command lines of the plant and the controller for ``args``.
 
-    In real time the controller gets twice the scenario's ``duration`` (plus start-up) at most:
-    a controller in fault waits for a reset that nobody here will send.
+    In real time the controller gets the run's timeout ``time_limit`` (plus start-up) at most:
+    a controller in another fault waits for a reset that nobody here will send.
     """
     interface, channel = resolve_transport(args.interface, args.channel)
     common = [args.scenario, "--clock", args.clock, "--interface", interface, "--channel", channel]
@@ -165,7 +166,7 @@ def node_commands(args: argparse.Namespace, duration: float) -> tuple[list[str],
     else:
         wall_time = args.timeout
         if args.clock == ClockMode.REALTIME.value:
-            wall_time = min(wall_time, 2.0 * duration + REALTIME_SLACK)
+            wall_time = min(wall_time, time_limit + REALTIME_SLACK)
         controller += ["--max-wall-time", f"{wall_time:g}"]
     if args.mode:
         controller += ["--mode", args.mode]
@@ -395,7 +396,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     for stale in ("controller.json", "plant_sim.json", LOG_FILE, RECORDING):
         (args.out / stale).unlink(missing_ok=True)
-    plant_command, controller_command = node_commands(args, scenario.duration)
+    plant_command, controller_command = node_commands(args, scenario.time_limit)
     order = (
         [controller_command, plant_command]
         if args.controller_first

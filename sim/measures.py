@@ -12,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.planner import plan_of
+from controller.run_end import RunOutcome
 from controller.runlog import RunLog
 from protocol.kinematics import tcp_velocity
 from protocol.scenario import WAYPOINT_TOLERANCE as WAYPOINT_TOLERANCE  # the one definition
@@ -37,6 +38,9 @@ JERK_WINDOW = 15
 
 @dataclass(frozen=True, slots=True)
 class Measures:
+    outcome: RunOutcome
+    """How the run ended: its task done, its timeout reached, no safe motion left, or (a
+    co-simulation) cut short; the run's driver knows it, not the log."""
     collision_free: bool
     min_clearance: float
     stops: int
@@ -65,6 +69,7 @@ class Measures:
 
 # (attribute, label, unit, scale for display, format)
 TABLE_ROWS = (
+    ("outcome", "outcome", "", 1.0, "{}"),
     ("collision_free", "collision-free", "", 1.0, "{}"),
     ("min_clearance", "min clearance", "mm", 1e3, "{:.2f}"),
     ("stops", "stops", "", 1.0, "{}"),
@@ -78,13 +83,14 @@ TABLE_ROWS = (
 )
 
 
-def compute_measures(scenario: Scenario, log: RunLog) -> Measures:
-    """The measures of one run's log: :class:`MeasureStream` fed the whole log at once."""
+def compute_measures(scenario: Scenario, log: RunLog, outcome: RunOutcome) -> Measures:
+    """The measures of one run's log, which ended with ``outcome``: :class:`MeasureStream`
+    fed the whole log at once."""
     stream = MeasureStream([scenario])
     if len(log):
         columns = {name: log[name][:, None] for name in MeasureStream.COLUMNS}
         stream.update(columns, np.ones((len(log), 1), dtype=bool))
-    return stream.measures()[0]
+    return stream.measures([outcome])[0]
 
 
 def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
@@ -326,8 +332,11 @@ class MeasureStream:
         self._counts = [self._counts[row] for row in rows]
         self._rows = np.arange(len(rows))
 
-    def measures(self, rows: npt.NDArray[np.intp] | None = None) -> list[Measures]:
-        """The measures of the runs ``rows`` (all if None), in their order."""
+    def measures(
+        self, outcomes: Sequence[RunOutcome], rows: npt.NDArray[np.intp] | None = None
+    ) -> list[Measures]:
+        """The measures of the runs ``rows`` (all if None), in their order, which ended with
+        ``outcomes`` (one each)."""
         stops = self._stops + (self._slow_run >= STOP_MIN_TICKS)
         rms = np.sqrt(self._square_sum / np.maximum(self._windows, 1))
         margin = np.divide(  # a plan that stays put in the plane has no stop speed
@@ -336,8 +345,10 @@ class MeasureStream:
             out=np.full_like(self._slowest, math.inf),
             where=self._threshold > 0.0,
         )
+        rows = self._rows if rows is None else rows
         return [
             Measures(
+                outcome=outcome,
                 collision_free=bool(self._min_clearance[row] > 0.0),
                 min_clearance=float(self._min_clearance[row]),
                 stops=int(stops[row]),
@@ -349,7 +360,7 @@ class MeasureStream:
                 path_length=float(self._length[row]),
                 waypoint_miss=tuple(float(m) for m in self._misses[row, : self._counts[row]]),
             )
-            for row in (self._rows if rows is None else rows)
+            for row, outcome in zip(rows, outcomes, strict=True)
         ]
 
 
@@ -385,7 +396,7 @@ def format_table(results: dict[str, Measures]) -> str:
         cells = []
         for name in names:
             value = getattr(results[name], attribute)
-            if isinstance(value, (bool, int)):
+            if isinstance(value, (bool, int, str)):
                 cells.append(fmt.format(value))
             else:
                 cells.append(fmt.format(value * scale))

@@ -21,6 +21,7 @@ from typing import IO, Any
 import numpy as np
 from mcap.reader import make_reader
 
+from controller.run_end import RunOutcome
 from controller.runlog import COLUMNS, RunLog
 from protocol.cli import add_verbosity, configure_logging, quiet_on_closed_pipe
 from protocol.errors import ScaraError
@@ -74,7 +75,9 @@ def read_run(out: Path) -> RunReport:
     plant = json.loads(plant_file.read_text()) if plant_file.exists() else None
     log = read_log(_log_source(out))
     scenario = parse_scenario(controller["scenario_document"])
-    measures = compute_measures(scenario, log) if len(log) >= MIN_ROWS else None
+    measures = None
+    if len(log) >= MIN_ROWS:
+        measures = compute_measures(scenario, log, RunOutcome(controller["outcome"]))
     return RunReport(controller, plant, log, measures)
 
 

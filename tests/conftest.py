@@ -25,6 +25,7 @@ import pytest
 from hypothesis import settings
 from support import (
     SLOWDOWN,
+    UNSAFE_WITHIN,
     Observer,
     Processes,
     Transport,
@@ -34,6 +35,7 @@ from support import (
     wait_until,
 )
 
+from controller.safety import Filtered, filtered
 from protocol.zenoh_can.config import router_reachable
 
 # Shared machines are noisy: no per-example deadlines. In CI the examples are derived from
@@ -150,3 +152,19 @@ def virtual_pair() -> Iterator[tuple[can.BusABC, can.BusABC]]:
     yield node_bus, peer
     node_bus.shutdown()
     peer.shutdown()
+
+
+@pytest.fixture
+def no_safe_motion_near(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The safety filter, its commands unchanged, reporting no safe motion wherever its
+    barrier lets the clearance fall, but at less than 0.2 m/s: within about UNSAFE_WITHIN of
+    an obstacle, at the default safety_rate (with none, the barrier's bound is 0). A feasible
+    task never leaves the real filter without a safe command, so the tests of what follows
+    stand this in for it."""
+
+    def unsafe(ops: Any, wanted: Any, box: Any, barrier: Any) -> Filtered:
+        command, verdict = filtered(ops, wanted, box, barrier)
+        near = (barrier.b > -10.0 * UNSAFE_WITHIN) & (barrier.b < 0.0)
+        return Filtered(command, verdict | near)
+
+    monkeypatch.setattr("controller.control_law.filtered", unsafe)

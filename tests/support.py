@@ -44,6 +44,12 @@ from controller.node import (
 from protocol.bus import enlarge_receive_buffer
 
 ROOT = Path(__file__).resolve().parent.parent
+LATE_DETOUR = ROOT / "tests" / "late_detour.toml"
+"""A scenario whose detour costs more than its settling time: its run ends after the plan's
+end, its task done (or, given a timeout as short as the plan, in TASK_TIMEOUT)."""
+UNSAFE_WITHIN = 0.02
+"""m: how near the inflated obstacle the fixture ``no_safe_motion_near`` (``conftest.py``)
+lets the arm come, about."""
 VCAN0 = Path("/sys/class/net/vcan0")
 HIL_REQUIRED = os.environ.get("SCARA_HIL_REQUIRED") == "1"
 """Set where the ``hil`` tier must run (``.ci/run`` in its VM): no vcan0 then fails the

@@ -4,11 +4,15 @@ checks and e-stop."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+from typing import Any
+
 import can
 import pytest
 from support import FakeClock, frame
 
 from controller.node import STALE_TICKS, ControllerNode
+from controller.safety import Filtered, filtered
 from protocol.codec import WIRE
 from protocol.errors import ConfigError
 from protocol.messages import NODE_COMMAND, STATE, STOP, ControllerFault, NodeState
@@ -181,3 +185,64 @@ def test_the_run_clock_counts_holds_the_plan_clock_does_not(
     assert log["t"][-1] - log["t"][-2] == pytest.approx(controller.period)
     gap = log["clock"][-1] - log["clock"][-2]
     assert gap == pytest.approx((without_row + 1) * controller.period)
+
+
+def test_a_run_goes_on_past_its_plan_until_its_timeout_then_latches_task_timeout_braking(
+    virtual_pair: tuple[can.BusABC, can.BusABC],
+) -> None:
+    """The plant reports the arm where it started, tick after tick: the task is never done."""
+    node_bus, peer = virtual_pair
+    clock = FakeClock()
+    scenario = replace(SCENARIO, timeout=SCENARIO.duration + 0.5)
+    controller = ControllerNode(node_bus, scenario, ClockMode.REALTIME, clock=clock)
+    limit = round(scenario.time_limit / controller.period)
+    counter = 0
+    while controller.tick < limit and controller.node_state is not NodeState.FAULT:
+        send_state(peer, counter % 16)
+        counter += 1
+        tick(controller, clock)
+        sent = commands(peer)
+        if controller.tick == controller.ticks_to_run:  # where a run used to end
+            assert controller.node_state is NodeState.RUNNING and not controller.done
+            assert sent[-1][0] == 1
+    assert controller.node_state is NodeState.RUNNING  # the timeout's tick is the next one
+    send_state(peer, counter % 16)
+    tick(controller, clock)
+    assert controller.tick == limit + 1 and len(controller.log_rows) == limit + 1
+    assert controller.node_state is NodeState.FAULT
+    assert controller.fault == ControllerFault.TASK_TIMEOUT
+    assert commands(peer)[-1] == (0, 0.0, 0.0, 0.0)  # braking, not the tick's command
+    run = {codec.name: record for codec, record in controller.statuses()}["ControllerRun"]
+    assert run.Progress == 99  # 100: done
+    result = controller.result()
+    assert result["outcome"] == "task_timeout" and result["faults"] == ["TASK_TIMEOUT"]
+    assert not result["completed"] and controller.done and controller.exit_code == 1
+    send_state(peer, (counter + 1) % 16)
+    tick(controller, clock)
+    assert controller.node_state is NodeState.FAULT and controller.tick == limit + 1
+    assert commands(peer) == [(0, 0.0, 0.0, 0.0)]
+
+
+def test_no_safe_motion_during_a_run_latches_its_fault_and_brakes(
+    virtual_pair: tuple[can.BusABC, can.BusABC], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The safety filter finds no safe command from the 50th tick of the run on."""
+    node_bus, peer = virtual_pair
+    clock = FakeClock()
+    controller = ControllerNode(node_bus, SCENARIO, ClockMode.REALTIME, clock=clock)
+
+    def unsafe_late(ops: Any, wanted: Any, box: Any, barrier: Any) -> Filtered:
+        return Filtered(filtered(ops, wanted, box, barrier).command, controller.tick >= 50)
+
+    monkeypatch.setattr("controller.control_law.filtered", unsafe_late)
+    counter = start_running(peer, controller, clock, ticks=50)
+    assert controller.node_state is NodeState.RUNNING
+    assert commands(peer)[-1][0] == 1  # moving
+    send_state(peer, counter)
+    tick(controller, clock)
+    assert controller.node_state is NodeState.FAULT
+    assert controller.fault == ControllerFault.NO_SAFE_MOTION
+    assert commands(peer) == [(0, 0.0, 0.0, 0.0)]  # braking, not the tick's command
+    result = controller.result()
+    assert result["outcome"] == "no_safe_motion" and result["faults"] == ["NO_SAFE_MOTION"]
+    assert not result["completed"] and controller.done and controller.exit_code == 1

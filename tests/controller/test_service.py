@@ -13,12 +13,12 @@ import itertools
 import json
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import can
 import pytest
-from support import SLOWDOWN, FakeClock
+from support import LATE_DETOUR, SLOWDOWN, FakeClock
 
 from bridge.operator import Answer, OperatorNode
 from controller.service import ServiceNode, with_approach
@@ -288,6 +288,26 @@ def test_a_plant_fault_during_a_run_ends_it_in_a_fault(rig: Rig) -> None:
     assert rig.service.fault & ControllerFault.PLANT_FAULT
 
 
+def test_a_run_not_done_by_its_timeout_ends_in_task_timeout_until_a_reset(rig: Rig) -> None:
+    """A task a detour makes late, its timeout as short as its plan: the run ends in the
+    fault, writes its result as a run that timed out, and holds the arm until a reset."""
+    late = load_scenario(LATE_DETOUR)
+    task = parse_task(task_document(late) | {"timeout": late.duration}, BASE)
+    assert rig.ask(task).accepted
+    assert rig.ask(Request.RUN) == Answer(True, "none")
+    limit = round(rig.service.scenario.time_limit / rig.service.period)
+    rig.step_until(lambda: rig.service.node_state is not NodeState.RUNNING, limit + 1, "end")
+    assert rig.service.node_state is NodeState.FAULT
+    assert rig.service.fault == ControllerFault.TASK_TIMEOUT
+    assert rig.service.tick == limit + 1
+    result = rig.service.result()
+    assert result["runs"] == 1 and result["outcome"] == "task_timeout"
+    assert not result["completed"] and rig.service.exit_code == 1
+    assert rig.ask(Request.RUN) == Answer(False, "faulted")
+    assert rig.ask(Request.RESET).accepted
+    assert rig.ask(Request.RUN) == Answer(True, "none")
+
+
 def test_the_plant_judges_collisions_by_the_obstacle_of_the_task_in_force(rig: Rig) -> None:
     """The task without the obstacle the plant started with, its way straight through where
     that obstacle stands: the run completes, and the plant saw no collision (it once judged by
@@ -344,6 +364,10 @@ def test_the_approach_segment_leads_from_the_arm_to_the_first_waypoint() -> None
     assert (run.waypoints[0].x, run.waypoints[0].y, run.waypoints[0].z) == pytest.approx(tcp)
     assert run.waypoints[1:] == TASK.waypoints
     assert first.t - run.waypoints[0].t >= 0.5
+    span = run.waypoints[-1].t - run.waypoints[0].t
+    assert run.time_limit == 2 * span + TASK.settle_time  # the default: of the whole run
+    timed = replace(TASK, timeout=TASK.duration)
+    assert with_approach(timed, tcp)[0].time_limit == run.duration  # the task's plus the lead
     at_start = forward(TASK.robot, *TASK.initial_joints())
     assert with_approach(TASK, at_start) == (TASK, 0)
     with pytest.raises(ConfigError):

@@ -54,17 +54,22 @@ lockstep ticks took 268 s there, 8 ticks/s, and more load slows it further)."""
 
 
 @cache
-def reference_run(mode: Mode) -> SimulationRun:
-    return simulate(load_scenario(SCENARIO), mode)
+def reference_run(mode: Mode, scenario: str = SCENARIO) -> SimulationRun:
+    return simulate(load_scenario(scenario), mode)
 
 
 def launch(
-    processes: Processes, transport: Transport, out: Path, clock: str, *extra: str
+    processes: Processes,
+    transport: Transport,
+    out: Path,
+    clock: str,
+    *extra: str,
+    scenario: str = SCENARIO,
 ) -> tuple[int, dict[str, Any]]:
-    """Run ``scara-run`` to the end; its exit code and the run's report as a dict: the
-    controller's result, ``"plant"`` the plant's, ``"measures"`` those of the log."""
+    """Run ``scara-run`` on ``scenario`` to the end; its exit code and the run's report as a
+    dict: the controller's result, ``"plant"`` the plant's, ``"measures"`` those of the log."""
     launcher = processes.start(
-        "sim.launch", SCENARIO, "--clock", clock, "--out", str(out), *transport.cli(),
+        "sim.launch", scenario, "--clock", clock, "--out", str(out), *transport.cli(),
         "--timeout", f"{RUN_TIMEOUT * SLOWDOWN:g}", *extra, name="launch",
     )  # fmt: skip
     code = launcher.wait(RUN_TIMEOUT + 30.0)  # the run's time, then the nodes' stop
@@ -172,10 +177,12 @@ def same(a: Any, b: Any) -> bool:
     return bool(a == b)
 
 
-def assert_bit_identical(result: dict[str, Any], out: Path, mode: Mode) -> None:
-    """Measures equal to the in-process simulation's (after a JSON round trip, floats exact),
-    and the logged time series equal bit for bit."""
-    expected = reference_run(mode)
+def assert_bit_identical(
+    result: dict[str, Any], out: Path, mode: Mode, scenario: str = SCENARIO
+) -> None:
+    """Measures equal to the in-process simulation's of ``scenario`` (after a JSON round trip,
+    floats exact), and the logged time series equal bit for bit."""
+    expected = reference_run(mode, scenario)
     want = json.loads(json.dumps(expected.measures.as_dict()))
     got = json.loads(json.dumps(result["measures"]))
     differing = {k: (got.get(k), want[k]) for k in want if not same(got.get(k), want[k])}

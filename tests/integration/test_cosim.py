@@ -41,6 +41,7 @@ from cosim import (
     status_of,
 )
 from support import (
+    LATE_DETOUR,
     SLOWDOWN,
     Observer,
     Process,
@@ -76,6 +77,27 @@ def test_lockstep_run_is_bit_identical_to_the_in_process_simulation(
     assert result["mode"] == mode.value and result["clock"] == "lockstep"
     assert_run_is_clean(result, outputs)
     assert_bit_identical(result, out, mode)
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("timed_out", [False, True], ids=["late", "timed-out"])
+def test_lockstep_run_of_a_late_task_ends_as_the_in_process_simulations(
+    transport: Transport, processes: Processes, tmp_path: Path, timed_out: bool
+) -> None:
+    """A detour that outlasts the settling time: the run goes on until its task is done, or
+    (its timeout as short as its plan) ends in TASK_TIMEOUT, as in the simulation."""
+    scenario = LATE_DETOUR
+    if timed_out:  # the plan's 1.5 s and 1 s of settling
+        scenario = tmp_path / "late_timeout.toml"
+        scenario.write_text("timeout = 2.5\n" + LATE_DETOUR.read_text())
+    out = tmp_path / "run"
+    code, result = launch(processes, transport, out, "lockstep", scenario=str(scenario))
+    outputs = processes.outputs()
+    assert code == int(timed_out), f"{brief(result)}\n{outputs}"
+    assert result["outcome"] == ("task_timeout" if timed_out else "done"), brief(result)
+    assert result["faults"] == (["TASK_TIMEOUT"] if timed_out else []), brief(result)
+    assert result["measures"]["collision_free"] is True
+    assert_bit_identical(result, out, Mode.FUZZY, str(scenario))
 
 
 # --------------------------------------------------------------------------- 2. real time

@@ -15,12 +15,13 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import can
 import numpy as np
 import pytest
-from support import ROOT, SLOWDOWN, frame
+from support import LATE_DETOUR, ROOT, SLOWDOWN, frame
 
 from controller.node import (
     GIVE_UP_VARIABLE,
@@ -29,6 +30,7 @@ from controller.node import (
     STARTUP_VARIABLE,
     ControllerNode,
 )
+from controller.run_end import RunOutcome
 from plant_sim.node import PlantNode
 from protocol.errors import ConfigError
 from protocol.node import ClockMode
@@ -73,7 +75,40 @@ def test_lockstep_over_the_virtual_bus_is_bit_identical_to_the_simulation() -> N
     expected = simulate(scenario)
     assert controller.finished
     assert np.array_equal(controller.log_rows.data, expected.log.data)
-    assert compute_measures(scenario, controller.log_rows) == expected.measures
+    assert controller.outcome is not None
+    assert compute_measures(scenario, controller.log_rows, controller.outcome) == expected.measures
+
+
+@pytest.mark.parametrize("timed_out", [False, True], ids=["late", "timed-out"])
+def test_lockstep_of_a_late_run_ends_as_the_simulations(timed_out: bool) -> None:
+    """A run that a detour made late ends when its task is done, or (its timeout as short
+    as its plan) in TASK_TIMEOUT, on the simulation's tick and with its log and measures."""
+    scenario = load_scenario(LATE_DETOUR)
+    if timed_out:
+        scenario = replace(scenario, timeout=scenario.duration)
+    controller = lockstep_on_virtual(scenario, f"lockstep-late-{timed_out}")
+    expected = simulate(scenario)
+    assert controller.outcome is expected.measures.outcome
+    assert np.array_equal(controller.log_rows.data, expected.log.data)
+    measures = compute_measures(scenario, controller.log_rows, controller.outcome)
+    assert repr(measures) == repr(expected.measures)  # exact, and NaN (never completed) too
+    result = controller.result()
+    assert result["outcome"] == ("task_timeout" if timed_out else "done")
+    assert result["completed"] is not timed_out
+    assert result["faults"] == (["TASK_TIMEOUT"] if timed_out else [])
+    assert controller.exit_code == int(timed_out)
+
+
+@pytest.mark.usefixtures("no_safe_motion_near")
+def test_lockstep_without_safe_motion_faults_on_the_simulations_tick() -> None:
+    scenario = load_scenario(LATE_DETOUR)
+    controller = lockstep_on_virtual(scenario, "lockstep-unsafe")
+    expected = simulate(scenario)
+    assert controller.outcome is expected.measures.outcome is RunOutcome.NO_SAFE_MOTION
+    assert np.array_equal(controller.log_rows.data, expected.log.data)
+    result = controller.result()
+    assert result["outcome"] == "no_safe_motion" and result["faults"] == ["NO_SAFE_MOTION"]
+    assert result["state"] == "FAULT" and controller.exit_code == 1
 
 
 class Flooded(can.BusABC):

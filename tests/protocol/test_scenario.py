@@ -8,6 +8,7 @@ import copy
 import json
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ import pytest
 
 from protocol.errors import ConfigError
 from protocol.scenario import (
+    MAX_DURATION,
     MAX_TASK_BYTES,
     SCENARIO_DIR,
     Mode,
@@ -24,6 +26,7 @@ from protocol.scenario import (
     parse_scenario,
     parse_task,
     read_task,
+    scenario_document,
 )
 from protocol.validation import shipped_schemas
 
@@ -83,6 +86,12 @@ def _set(path: list[Any], value: Any) -> Any:
         (_set(["waypoints", 2, "z"], True), "waypoints[2].z"),
         (_set(["settle_time"], -1.0), "settle_time"),
         (_set(["settle_time"], 4000.0), "waypoints"),
+        (_set(["timeout"], 0.0), "timeout"),
+        (_set(["timeout"], -3.0), "timeout"),
+        (_set(["timeout"], math.inf), "timeout"),
+        (_set(["timeout"], "late"), "timeout"),
+        (_set(["timeout"], 6.4), "timeout"),  # below the plan's 5.5 s span + 1 s settling
+        (_set(["timeout"], 3600.5), "timeout"),
         (_set(["name"], 7), "name"),
         (_set(["obstacle"], 0.3), "obstacle"),
         (_set(["obstacle", "margin"], -0.01), "obstacle.margin"),
@@ -112,6 +121,21 @@ def test_bad_scenarios_name_the_field(change: Any, field: str) -> None:
         parse_scenario(broken(change))
     assert error.value.field == field, str(error.value)
     assert field in str(error.value)
+
+
+def test_the_timeout_defaults_to_twice_the_plan_and_round_trips_when_set() -> None:
+    default = parse_scenario(REFERENCE)
+    assert default.timeout is None and default.time_limit == 2 * 5.5 + 1.0
+    assert "timeout" not in scenario_document(default)
+    longest = parse_scenario(broken(_set(["settle_time"], MAX_DURATION - 5.5)))
+    assert longest.time_limit == MAX_DURATION  # the default never exceeds the bound
+    for timeout in (6.5, 30.0, MAX_DURATION):
+        scenario = parse_scenario(broken(_set(["timeout"], timeout)))
+        assert scenario.time_limit == timeout
+        again = parse_scenario(json.loads(json.dumps(scenario_document(scenario))))
+        assert again == replace(scenario, description="")  # a document has no description
+        task = parse_task(read_task(encode_task(scenario, 9))[1], BASE)
+        assert task.timeout == timeout
 
 
 def test_unknown_scenario_name_lists_the_packaged_ones() -> None:

@@ -8,15 +8,17 @@ from dataclasses import fields, replace
 
 import numpy as np
 import pytest
+from support import LATE_DETOUR
 
 from controller.planner import check_plan
+from controller.run_end import RunOutcome
 from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow
 from protocol.scenario import Mode, Scenario, Waypoint, check_scenario, load_scenario
 from sim.batch import BatchRun, simulate_batch
 from sim.generator import generate_scenario_at
-from sim.measures import Measures, MeasureStream, compute_measures
+from sim.measures import WAYPOINT_TOLERANCE, Measures, MeasureStream, compute_measures
 from sim.simulation import simulate
 
 TOLERANCE = 1e-9
@@ -76,7 +78,7 @@ def assert_same(batch: Measures, scalar: Measures, name: str) -> None:
     for field in fields(Measures):
         got, expected = getattr(batch, field.name), getattr(scalar, field.name)
         where = f"{name}: {field.name}"
-        if isinstance(expected, bool | int):
+        if isinstance(expected, bool | int | str):
             assert got == expected, where
         elif isinstance(expected, tuple):
             assert len(got) == len(expected), where
@@ -171,6 +173,27 @@ def test_batch_equals_scalar_where_the_height_leads() -> None:
     assert batch[0].measures.stops == 0
 
 
+def test_runs_leave_a_batch_when_each_ends_as_in_the_scalar_simulation() -> None:
+    """A run done on time, one a detour made late and the same timed out at its plan's end:
+    each its own outcome, and measures equal to the scalar simulation's."""
+    late = load_scenario(LATE_DETOUR)
+    chosen = [load_scenario("reference"), late, replace(late, timeout=late.duration)]
+    batch = batch_against_scalar(chosen)
+    outcomes = [result.measures.outcome for result in batch]
+    assert outcomes == [RunOutcome.DONE, RunOutcome.DONE, RunOutcome.TASK_TIMEOUT] * 2
+    assert max(result.measures.max_waypoint_miss for result in batch[:2]) <= WAYPOINT_TOLERANCE
+
+
+@pytest.mark.usefixtures("no_safe_motion_near")
+def test_runs_without_safe_motion_leave_a_batch_as_in_the_scalar_simulation() -> None:
+    """Each on its own tick, a run on time (no_obstacle) beside them."""
+    chosen = [load_scenario(name) for name in ("reference", "no_obstacle")]
+    chosen.append(load_scenario(LATE_DETOUR))
+    batch = batch_against_scalar(chosen)
+    outcomes = [result.measures.outcome for result in batch]
+    assert outcomes == [RunOutcome.NO_SAFE_MOTION, RunOutcome.DONE, RunOutcome.NO_SAFE_MOTION] * 2
+
+
 def test_a_run_does_not_depend_on_the_rest_of_its_batch(study: list[Scenario]) -> None:
     short = sorted(study, key=lambda scenario: scenario.duration)[:4]
     alone = simulate_batch(short[:1], Mode.CONVENTIONAL)
@@ -203,10 +226,12 @@ def test_measures_fed_in_blocks_equal_those_of_the_whole_log() -> None:
                 name: run.log[name][start : start + block, None] for name in MeasureStream.COLUMNS
             }
             stream.update(columns, np.ones((len(columns["clock"]), 1), dtype=bool))
-        results.append(stream.measures()[0])
+        results.append(stream.measures([run.measures.outcome])[0])
     for result in results:
         assert_same(result, run.measures, f"blocks of {block}")
-    assert_same(results[0], compute_measures(run.scenario, run.log), "whole log")
+    assert_same(
+        results[0], compute_measures(run.scenario, run.log, run.measures.outcome), "whole log"
+    )
 
 
 def test_ticks_past_a_runs_end_are_not_counted() -> None:
@@ -218,7 +243,7 @@ def test_ticks_past_a_runs_end_are_not_counted() -> None:
     }
     valid = np.arange(len(extended["clock"]))[:, None] < len(run.log)
     stream.update(extended, valid)
-    assert_same(stream.measures()[0], run.measures, "extended")
+    assert_same(stream.measures([run.measures.outcome])[0], run.measures, "extended")
 
 
 def test_a_batch_shares_its_configuration() -> None:

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
+from support import LATE_DETOUR, UNSAFE_WITHIN
 
-from controller.runlog import RunLog
+from controller.run_end import SETTLED_SPEEDS, RunOutcome
+from controller.runlog import COLUMN, RunLog
 from protocol.kinematics import tcp_velocity
 from protocol.scenario import Mode, load_scenario
 from sim.cli import main as sim_main
@@ -95,14 +98,14 @@ def test_measures_count_stops_and_collisions_from_the_log() -> None:
     run = simulate(load_scenario("no_obstacle"), Mode.FUZZY)
     data = run.log.data.copy()
     log = RunLog.from_array(data)
-    assert compute_measures(run.scenario, log) == run.measures
+    assert compute_measures(run.scenario, log, run.measures.outcome) == run.measures
     # Freeze the arm for 10 ticks mid-run: that is one stop.
     middle = len(data) // 3
     for name in ("theta1_rate", "theta2_rate", "d3_rate"):
         log[name][middle : middle + 10] = 0.0
-    assert compute_measures(run.scenario, log).stops == 1
+    assert compute_measures(run.scenario, log, run.measures.outcome).stops == 1
     log["clearance"][middle] = -0.001
-    assert not compute_measures(run.scenario, log).collision_free
+    assert not compute_measures(run.scenario, log, run.measures.outcome).collision_free
 
 
 @pytest.mark.parametrize("block", [1, 2, 3, 64, 1000])
@@ -114,14 +117,14 @@ def test_measures_do_not_depend_on_the_blocks_a_log_is_fed_in(block: int) -> Non
     start = 5 * 64 - STOP_MIN_TICKS
     for name in ("theta1_rate", "theta2_rate", "d3_rate"):
         log[name][start : start + STOP_MIN_TICKS] = 0.0
-    whole = compute_measures(run.scenario, log)
+    whole = compute_measures(run.scenario, log, run.measures.outcome)
     assert whole.stops == 1
     stream = MeasureStream([run.scenario])
     for first in range(0, len(log), block):
         rows = slice(first, first + block)
         columns = {name: log[name][rows, None] for name in MeasureStream.COLUMNS}
         stream.update(columns, np.ones((len(columns["clock"]), 1), dtype=bool))
-    fed = stream.measures()[0]
+    fed = stream.measures([run.measures.outcome])[0]
     assert (fed.stops, fed.stop_margin, fed.peak_jerk) == (
         whole.stops,
         whole.stop_margin,
@@ -157,7 +160,7 @@ def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
         tampered = RunLog.from_array(run.log.data.copy())
         for name in ("theta1_rate", "theta2_rate", "d3_rate"):
             tampered[name][middle : middle + ticks] *= scale
-        measures = compute_measures(run.scenario, tampered)
+        measures = compute_measures(run.scenario, tampered, run.measures.outcome)
         return measures.stops, measures.stop_margin
 
     # Two frozen ticks are not a stop, and the margin stays above 1; three are both.
@@ -182,3 +185,54 @@ def test_command_line_rejects_a_bad_scenario(tmp_path, capsys) -> None:  # type:
     bad.write_text("[[waypoints]]\nt = 0\nx = 0.3\ny = 0\nz = 0.2\n")
     assert sim_main([str(bad), "--out", str(tmp_path)]) == 2
     assert "waypoints" in capsys.readouterr().err
+
+
+def test_a_run_whose_detour_outlasts_the_settling_time_goes_on_until_its_task_is_done() -> None:
+    scenario = load_scenario(LATE_DETOUR)
+    plan_end = round(scenario.duration / scenario.controller.period) + 1
+    for mode in Mode:
+        run = simulate(scenario, mode)
+        at_plan_end = compute_measures(
+            scenario, RunLog.from_array(run.log.data[:plan_end]), RunOutcome.CUT_SHORT
+        )
+        assert at_plan_end.max_waypoint_miss > WAYPOINT_TOLERANCE  # it used to stop here
+        assert math.isnan(at_plan_end.completion_time)
+        measures = run.measures
+        assert measures.outcome is RunOutcome.DONE, mode
+        assert plan_end < len(run.log) < round(scenario.time_limit / scenario.controller.period)
+        assert measures.max_waypoint_miss <= WAYPOINT_TOLERANCE
+        assert measures.collision_free and measures.stops == 0
+        assert math.isfinite(measures.completion_time)
+        last = scenario.waypoints[-1]
+        end = run.log.data[-1]
+        tcp = [end[COLUMN[axis]] for axis in "xyz"]
+        assert math.dist(tcp, (last.x, last.y, last.z)) <= WAYPOINT_TOLERANCE
+        speeds = [abs(end[COLUMN[f"{joint}_rate"]]) for joint in ("theta1", "theta2", "d3")]
+        assert all(s < limit for s, limit in zip(speeds, SETTLED_SPEEDS, strict=True))
+
+
+def test_a_run_not_done_by_its_timeout_ends_there_reported_as_such() -> None:
+    late = load_scenario(LATE_DETOUR)
+    scenario = replace(late, timeout=late.duration)  # as short as the plan itself
+    run = simulate(scenario, Mode.FUZZY)
+    assert run.measures.outcome is RunOutcome.TASK_TIMEOUT
+    assert len(run.log) == round(scenario.time_limit / scenario.controller.period) + 1
+    assert run.measures.max_waypoint_miss > WAYPOINT_TOLERANCE
+
+
+@pytest.mark.usefixtures("no_safe_motion_near")
+def test_a_run_ends_on_the_tick_the_safety_filter_finds_no_safe_motion() -> None:
+    scenario = load_scenario(LATE_DETOUR)
+    plan_end = round(scenario.duration / scenario.controller.period) + 1
+    run = simulate(scenario, Mode.FUZZY)
+    assert run.measures.outcome is RunOutcome.NO_SAFE_MOTION
+    assert len(run.log) < plan_end
+    assert run.log["clearance"][-1] <= UNSAFE_WITHIN + 0.002 < run.log["clearance"][0]
+
+
+def test_a_run_done_on_time_ends_at_the_plans_end(
+    reference_runs: dict[Mode, SimulationRun],
+) -> None:
+    for run in reference_runs.values():
+        assert run.measures.outcome is RunOutcome.DONE
+        assert len(run.log) == round(run.scenario.duration / run.scenario.controller.period) + 1
