@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.run_end import RunOutcome
 from protocol.scenario import Mode
 from sim.measures import WAYPOINT_TOLERANCE, Measures
 from sim.study.jobs import Outcome
@@ -38,6 +39,8 @@ def summary(outcomes: Sequence[Outcome]) -> dict[str, str]:
         "scenarios": f"{count}",
         "collisions": f"{collisions} ({100.0 * collisions / count:.1f} %)",
         "scenarios with stops": f"{sum(m.stops > 0 for m in measures)}",
+        "timed out": f"{sum(m.outcome is RunOutcome.TASK_TIMEOUT for m in measures)}",
+        "no safe motion": f"{sum(m.outcome is RunOutcome.NO_SAFE_MOTION for m in measures)}",
         f"scenarios near a stop (margin < {NEAR_STOP:g})": str(
             sum(m.stop_margin < NEAR_STOP for m in measures)
         ),
