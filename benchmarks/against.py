@@ -56,13 +56,15 @@ def tree_at(revision: str, into: Path) -> Path:
 def run_in(tree: Path, script: str, arguments: Sequence[str], output: Path) -> dict[str, Any]:
     """``script`` of ``tree``'s benchmarks, run on ``tree``'s code; the numbers it wrote."""
     environment = dict(os.environ, PYTHONPATH=str(tree))
-    subprocess.run(
+    finished = subprocess.run(
         [sys.executable, str(tree / "benchmarks" / script), *arguments, "--json", str(output)],
         cwd=tree,
         env=environment,
         check=False,
         stdout=subprocess.DEVNULL,
     )
+    if not output.exists():
+        raise SystemExit(f"{script} on {tree} wrote no numbers (exit {finished.returncode})")
     document: dict[str, Any] = json.loads(output.read_text())
     return document
 

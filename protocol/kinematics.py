@@ -2,7 +2,8 @@
 
 Pure functions on plain floats, written with :mod:`math` rather than numpy: they run on
 every control tick (500-1000 Hz), where numpy's per-call overhead would dominate; only
-:func:`clearly_reachable` takes arrays, to check a whole planned path at once.
+:func:`clearly_reachable` takes arrays, to check a whole planned path at once, and
+:func:`reaches` takes either (:mod:`protocol.ops`).
 
 Angles are in radians and lengths in metres. ``theta2`` is the elbow angle relative to
 link 1: ``theta2 = 0`` is the stretched arm and ``|theta2| = pi`` the folded one, the two
@@ -20,7 +21,7 @@ import numpy.typing as npt
 
 from protocol.config import RobotConfig
 from protocol.errors import JointLimitError, UnreachableError
-from protocol.ops import SCALAR, Ops, Real
+from protocol.ops import ARRAY, SCALAR, Ops, Real
 
 Values = TypeVar("Values", float, npt.NDArray[np.float64])
 """For :func:`tcp_velocity`: one state, or a whole log's arrays."""
@@ -136,40 +137,36 @@ def clearly_reachable(
 ) -> npt.NDArray[np.bool_]:
     """Which points :func:`inverse` certainly accepts, CLEAR_MARGIN inside every limit it
     checks, for many points at once; ``False`` where it may refuse (ask it there)."""
-    a1, a2 = config.a1, config.a2
     margin = CLEAR_MARGIN
-    c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2.0 * a1 * a2)
-    inside = (config.z_min + margin < z) & (z < config.z_max - margin) & (np.abs(c2) < 1 - margin)
-    c2 = np.clip(c2, -1.0, 1.0)
-    s2 = elbow.value * np.sqrt((1.0 - c2) * (1.0 + c2))
-    theta2 = np.arctan2(s2, c2)
-    theta1 = np.arctan2(y, x) - np.arctan2(a2 * s2, a1 + a2 * c2)
-    theta1 = (theta1 + math.pi) % math.tau - math.pi  # the wrap near +-pi is left to inverse
-    return np.asarray(
-        inside
-        & (np.abs(theta1) < math.pi - margin)
-        & (config.theta1_min + margin < theta1)
-        & (theta1 < config.theta1_max - margin)
-        & (config.theta2_min + margin < theta2)
-        & (theta2 < config.theta2_max - margin)
-    )
+    inside = (config.z_min + margin < z) & (z < config.z_max - margin)
+    return np.asarray(inside & reaches(ARRAY, config, x, y, elbow.value, margin, margin))
 
 
-def reaches(ops: Ops, config: RobotConfig, x: Real, y: Real, elbow: Real, margin: float) -> Real:
+def reaches(
+    ops: Ops,
+    config: RobotConfig,
+    x: Real,
+    y: Real,
+    elbow: Real,
+    margin: float,
+    cos_margin: float = 0.0,
+) -> Real:
     """Whether the arm reaches the plane point (x, y) with its elbow on the side ``elbow``
-    (+1 as :attr:`Elbow.DOWN`, -1 as UP) and theta1 and theta2 at least ``margin`` rad inside
-    their limits (:func:`inverse`'s arithmetic, over :mod:`protocol.ops`: for the detours
-    the control law checks on floats and the batch on arrays)."""
+    (+1 as :attr:`Elbow.DOWN`, -1 as UP), theta1 and theta2 at least ``margin`` rad inside
+    their limits and cos theta2 ``cos_margin`` inside +-1 (:func:`inverse`'s arithmetic, over
+    :mod:`protocol.ops`: for the detours the control law checks on floats and the batch and
+    the planner on arrays)."""
     a1, a2 = config.a1, config.a2
     c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2.0 * a1 * a2)
-    inside = abs(c2) < 1.0
+    inside = abs(c2) < 1.0 - cos_margin
     c2 = ops.min(ops.max(c2, -1.0), 1.0)
     s2 = elbow * ops.sqrt((1.0 - c2) * (1.0 + c2))
     theta2 = ops.atan2(s2, c2)
     theta1 = ops.atan2(y, x) - ops.atan2(a2 * s2, a1 + a2 * c2)
-    theta1 = (theta1 + math.pi) % math.tau - math.pi
+    theta1 = (theta1 + math.pi) % math.tau - math.pi  # the wrap near +-pi is left to inverse
     return (
         inside
+        & (abs(theta1) < math.pi - margin)
         & (config.theta2_min + margin < theta2)
         & (theta2 < config.theta2_max - margin)
         & (config.theta1_min + margin < theta1)
