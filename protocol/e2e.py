@@ -79,6 +79,10 @@ class E2EMonitor:
             self.counts.ok += 1
             return Check.FIRST
         step = (counter - last) % COUNTER_MODULO
+        if step <= MAX_FORWARD_JUMP:
+            # Only a stale frame's own successor, next in line, may continue it: one left
+            # from long ago would let a reordered old frame through (5, 4 after a stale 3).
+            self._stale.pop(frame_id, None)
         if step == 0:
             self.counts.repeated += 1
             return Check.REPEATED

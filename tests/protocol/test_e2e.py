@@ -34,6 +34,20 @@ def test_alive_counter_resynchronises_after_a_long_gap() -> None:
     assert monitor.check(0x110, 14) is Check.OK
 
 
+def test_a_late_frame_is_stale_whatever_came_late_before_it() -> None:
+    """A stale frame is followed only by the next one received: 3 late once, then long after
+    5 before 4 (a frame reordered on the wire), 4 is stale too. It was once taken as 3's
+    successor, and acted on (found by scara-soak's reordering)."""
+    monitor = E2EMonitor()
+    assert [monitor.check(0x100, c) for c in (2, 4, 3)] == [Check.FIRST, Check.LOST, Check.STALE]
+    for counter in range(5, 16):
+        monitor.check(0x100, counter)
+    assert [monitor.check(0x100, c) for c in (0, 1, 2, 3, 5, 4)] == [Check.OK] * 4 + [
+        Check.LOST,
+        Check.STALE,
+    ]
+
+
 def test_a_sender_silent_for_longer_than_any_frame_is_late_starts_over() -> None:
     """A restarted sender (a new bridge) begins at counter 0: after a silence its first
     command is acted on, while the same jump back within the silence is a stale frame."""
