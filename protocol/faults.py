@@ -1,8 +1,12 @@
-"""Fault injection on the sending side of a bus: drop or corrupt a share of the frames.
+"""Fault injection on the sending side of a bus: drop, corrupt, duplicate or reorder a share
+of the frames.
 
-Used by tests and by hand (``--inject-faults drop=0.05,corrupt=0.01,seed=1``) to show that
+Used by tests, by ``scara-soak`` and by hand
+(``--inject-faults drop=0.05,corrupt=0.01,duplicate=0.01,reorder=0.01,seed=1``) to show that
 the receivers detect what a bad wire does: a corrupted frame has one random data bit flipped,
-which the CRC always catches, and a dropped frame shows as a gap in the alive counter.
+which the CRC always catches; a dropped frame shows as a gap in the alive counter; a
+duplicated one repeats its counter and a reordered one (held back and sent after the next)
+comes with a stale counter, neither of which a receiver acts on.
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ class InjectedCounts:
     sent: int = 0
     dropped: int = 0
     corrupted: int = 0
+    duplicated: int = 0
+    reordered: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,25 +36,44 @@ class FaultSpec:
     drop: float = 0.0
     corrupt: float = 0.0
     seed: int = 0
+    duplicate: float = 0.0
+    reorder: float = 0.0
 
     @classmethod
     def parse(cls, text: str) -> FaultSpec:
-        """``drop=P,corrupt=P,seed=N`` (any subset)."""
+        """``drop=P,corrupt=P,duplicate=P,reorder=P,seed=N`` (any subset)."""
         values: dict[str, float] = {}
         for part in filter(None, text.split(",")):
             key, _, number = part.partition("=")
-            if key not in ("drop", "corrupt", "seed"):
-                raise ConfigError(f"inject-faults.{key}", "unknown; use drop, corrupt, seed")
+            if key not in (*_SHARES, "seed"):
+                known = ", ".join((*_SHARES, "seed"))
+                raise ConfigError(f"inject-faults.{key}", f"unknown; use {known}")
             try:
                 values[key] = int(number) if key == "seed" else float(number)
             except ValueError as error:
                 kind = "an integer" if key == "seed" else "a number"
                 raise ConfigError(f"inject-faults.{key}", f"not {kind}: {number!r}") from error
-        spec = cls(values.get("drop", 0.0), values.get("corrupt", 0.0), int(values.get("seed", 0)))
-        for name in ("drop", "corrupt"):
+        spec = cls(
+            drop=values.get("drop", 0.0),
+            corrupt=values.get("corrupt", 0.0),
+            seed=int(values.get("seed", 0)),
+            duplicate=values.get("duplicate", 0.0),
+            reorder=values.get("reorder", 0.0),
+        )
+        for name in _SHARES:
             if not 0.0 <= getattr(spec, name) <= 1.0:
                 raise ConfigError(f"inject-faults.{name}", "must be a probability in [0, 1]")
+        if spec.drop + spec.corrupt > 1.0:
+            raise ConfigError("inject-faults.corrupt", "drop and corrupt must sum to at most 1")
         return spec
+
+    def text(self) -> str:
+        """The spec as :meth:`parse` reads it (a command line's ``--inject-faults``)."""
+        shares = ",".join(f"{name}={getattr(self, name):g}" for name in _SHARES)
+        return f"{shares},seed={self.seed}"
+
+
+_SHARES = ("drop", "corrupt", "duplicate", "reorder")
 
 
 class FaultInjector(can.BusABC):
@@ -61,20 +86,44 @@ class FaultInjector(can.BusABC):
         self._random = random.Random(spec.seed)
         super().__init__(channel=getattr(inner, "channel_info", "faulty"))
         self.channel_info = f"faulty({getattr(inner, 'channel_info', '?')})"
+        self._held: can.Message | None = None
+        """A frame held back to go out after the next one (reordered)."""
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        survivor = self._through(msg)
-        if survivor is not None:
+        for survivor in self._through(msg):
             self.inner.send(survivor, timeout)
 
     def send_many(self, messages: Sequence[can.Message]) -> None:
-        """Frames sent together: each one dropped or corrupted on its own."""
-        survivors = [m for m in map(self._through, messages) if m is not None]
+        """Frames sent together: each one dropped, corrupted, duplicated or reordered on its
+        own."""
+        survivors = [frame for message in messages for frame in self._through(message)]
         if survivors:
             send_frames(self.inner, survivors)
 
-    def _through(self, msg: can.Message) -> can.Message | None:
-        """``msg`` as the wire passes it: None if dropped, with one bit flipped if corrupted."""
+    def _through(self, msg: can.Message) -> list[can.Message]:
+        """What the wire passes for ``msg``: nothing if dropped, one bit flipped if corrupted,
+        twice if duplicated, nothing yet if held back (it follows the next frame)."""
+        passed = self._altered(msg)
+        if passed is None:
+            return []
+        held, self._held = self._held, None
+        if held is None and self._draw(self.spec.reorder):
+            self._held = passed
+            self.counts.reordered += 1
+            return []
+        frames = [passed]
+        if self._draw(self.spec.duplicate):
+            frames.append(passed)
+            self.counts.duplicated += 1
+        return frames if held is None else [*frames, held]
+
+    def _draw(self, share: float) -> bool:
+        """True with probability ``share``; no draw for a share of 0, so that a seed drops
+        and corrupts the same frames as before duplication and reordering existed."""
+        return share > 0.0 and self._random.random() < share
+
+    def _altered(self, msg: can.Message) -> can.Message | None:
+        """``msg`` dropped (None) or with one bit flipped, by the spec's shares."""
         draw = self._random.random()
         if draw < self.spec.drop:
             self.counts.dropped += 1
