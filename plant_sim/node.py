@@ -190,9 +190,7 @@ class PlantNode(Node):
             self.enter_fault(PlantFault.JOINT_LIMIT)
         if self.obstacle is not None:
             x, y, z = forward(self.scenario.robot, *self.model.position)
-            inside = z < self.obstacle.height + self.obstacle.inflation and self.obstacle.contains(
-                x, y
-            )
+            inside = self.obstacle.holds(x, y, z)
             if inside and not self.collided:
                 self.stats.collisions += 1
             self.collided = inside

@@ -116,6 +116,11 @@ class EllipticCylinder:
         lx, ly = to_local(section, px, py)
         return bool(within(section.a, section.b, lx, ly))
 
+    def holds(self, px: float, py: float, pz: float) -> bool:
+        """The point is inside the solid: within the inflated section and below the inflated
+        top (the plant's collision truth, and the soak checker's, on their obstacles)."""
+        return pz < self.height + self.inflation and self.contains(px, py)
+
     def nearest_point(self, px: float, py: float) -> tuple[float, Point]:
         """Signed distance to the inflated section's boundary and the boundary point."""
         section = self.section()
