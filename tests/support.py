@@ -21,7 +21,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -42,6 +41,7 @@ from controller.node import (
     STARTUP_VARIABLE,
 )
 from protocol.bus import enlarge_receive_buffer
+from protocol.zenoh_can.config import free_port as free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 LATE_DETOUR = ROOT / "tests" / "late_detour.toml"
@@ -106,13 +106,6 @@ def hil_marks() -> list[pytest.MarkDecorator]:
             reason="no SocketCAN vcan0 here (sudo tools/vcan-setup, or run in tools/vcan-vm)",
         ),
     ]
-
-
-def free_port() -> int:
-    """A TCP port nobody holds right now on 127.0.0.1."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 class FakeClock:

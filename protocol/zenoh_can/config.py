@@ -18,6 +18,7 @@ import contextlib
 import ipaddress
 import json
 import re
+import socket
 from pathlib import Path
 from typing import Any, Final
 
@@ -149,6 +150,14 @@ def build_zenoh_config(settings: dict[str, Any], base: str | None = None) -> zen
     for path, value in settings.items():
         config.insert_json5(path, json.dumps(value))
     return config
+
+
+def free_port(host: str = DEFAULT_HOST) -> int:
+    """A TCP port nobody holds on ``host`` right now: for a router of one's own (the tests',
+    ``scara-soak``'s) beside any other on the machine."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind((host, 0))
+        return int(probe.getsockname()[1])
 
 
 def router_reachable(
