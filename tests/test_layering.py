@@ -1,5 +1,5 @@
 """Dependencies point one way: ``protocol`` <- ``controller``, ``plant_sim`` <- ``sim``;
-``protocol`` <- ``controller`` <- ``bridge``.
+``protocol`` <- ``controller`` <- ``bridge``; ``recorder`` above them, ``soak`` above all.
 
 ``controller`` and ``plant_sim`` never import each other, and ``protocol`` imports neither;
 and no module imports itself through others (no cycle in the graph of the project's modules).
@@ -15,7 +15,7 @@ import networkx as nx
 import pytest
 from support import ROOT
 
-PACKAGES = ("protocol", "controller", "plant_sim", "sim", "bridge", "recorder")
+PACKAGES = ("protocol", "controller", "plant_sim", "sim", "bridge", "recorder", "soak")
 ALLOWED = {
     "protocol": {"protocol"},
     "controller": {"controller", "protocol"},
@@ -23,6 +23,7 @@ ALLOWED = {
     "sim": {"sim", "controller", "plant_sim", "protocol"},
     "bridge": {"bridge", "controller", "protocol"},
     "recorder": {"recorder", "bridge", "sim", "controller", "plant_sim", "protocol"},
+    "soak": set(PACKAGES),
 }
 
 

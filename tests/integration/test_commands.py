@@ -69,6 +69,8 @@ def test_help_explains_the_command_and_offers_verbosity(command: str) -> None:
         ("scara-run", ["reference", "--timeout", "0"], "--timeout"),
         ("scara-router", ["--port", "70000"], "--port"),
         ("scara-busload", ["--rate", "0"], "--rate"),
+        ("scara-soak", ["--minutes", "0"], "--minutes"),
+        ("scara-soak", ["--seed", "-1"], "--seed"),
         ("controller", ["reference", "--comms-timeout", "0.004"], "--comms-timeout"),
         ("controller", ["reference", "--inject-faults", "drop=2"], "inject-faults.drop"),
         ("plant_sim", ["no-such-scenario"], "scenario"),

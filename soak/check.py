@@ -1,0 +1,528 @@
+"""The soak's invariants, checked from the recordings alone (``scara-soak check``).
+
+The checker sees what the recorder saw: every frame on the bus in the order the recorder
+received it, stamped with the recorder's receive time. Through one router each sender's frames
+arrive in order, and a frame a node received before it sent another reached the recorder
+before that other too, so the order is one the nodes could have seen; the times are the
+recorder's (a paused recorder stamps a backlog at once: durations look shorter, never
+longer). What each invariant reads, and what it cannot see, is in ``docs/soak.md``.
+
+Each invariant is a pure function over the frames of one recording, decoded once
+(:func:`decode`), so that it can be tested on hand-made sequences.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+
+from controller.node import STALE_TICKS
+from protocol.codec import COUNTER_MODULO, WIRE, alive_counter
+from protocol.config import RobotConfig
+from protocol.e2e import E2EMonitor
+from protocol.errors import ConfigError, DecodeError
+from protocol.geometry import EllipticCylinder
+from protocol.isotp_link import CONSECUTIVE, FIRST, SINGLE
+from protocol.kinematics import forward
+from protocol.messages import (
+    COMMAND,
+    CONTROLLER_STATUS,
+    NODE_COMMAND,
+    PLANT_STATUS,
+    STATE_IDS,
+    STOP,
+    WORLD_UPLOAD,
+    JointStateParts,
+    NodeId,
+    NodeState,
+    PlantFault,
+    PlantFlag,
+    Request,
+)
+from protocol.scenario import parse_scenario
+from protocol.world import STARTUP_WORLD, read_world
+from recorder.mcap_can import RecordingError, frames, read_attachments
+from recorder.recover import recover
+
+INVARIANTS = (
+    "stale_command",
+    "collision",
+    "inside_obstacle",
+    "fault_latch",
+    "estop_latch",
+    "bad_frame_acted",
+    "recording",
+    "recovery",
+)
+"""Every invariant, by the name the report counts its violations under."""
+NEW_START = 1.0
+"""s of silence after which a node whose status counter starts again at 0 is taken for a new
+process (a restart: it has no latch to keep); a pause of up to 0.5 s is not one."""
+HEARD = 0.5
+"""s without a node's status after which it is taken for not heard."""
+ESTOP_WITHIN = 1.0
+"""s after an EmergencyStop by which every node heard must say e-stop."""
+RECOVERY_BOUND = 15.0
+"""s the system may be other than up (both nodes heard, each ready or running) at a time."""
+LATCHED = ("fault", "estop")
+UP = ("ready", "running")
+E2E_IDS = frozenset(WIRE.by_id)
+"""The frames with an E2E header (the ISO-TP carriers have none)."""
+NODES = {CONTROLLER_STATUS.frame_id: "controller", PLANT_STATUS.frame_id: "plant"}
+RESET_TARGETS = {
+    "controller": (NodeId.CONTROLLER, NodeId.ALL),
+    "plant": (NodeId.PLANT, NodeId.ALL),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Seen:
+    """One recorded frame as a receiver judges it."""
+
+    t: float
+    frame_id: int
+    check: str
+    """``ok`` (may be acted on), ``corrupt``, ``repeated``, ``stale``, or ``other`` (no E2E
+    header: ISO-TP, foreign IDs, extended, remote and error frames)."""
+    counter: int | None = None
+    record: Any = None
+    data: bytes = b""
+
+    @property
+    def usable(self) -> bool:
+        return self.check == "ok"
+
+
+@dataclass(frozen=True, slots=True)
+class Violation:
+    invariant: str
+    t: float
+    """The recorder's time of the frame that shows it (s since the epoch)."""
+    detail: str
+    recording: str = ""
+
+
+def decode(messages: Iterable[can.Message]) -> list[Seen]:
+    """Judge each frame as a node would: CRC and range (the codec), then the alive counter
+    (:class:`E2EMonitor`, started over at each reset, as the nodes do)."""
+    monitor = E2EMonitor()
+    seen = []
+    for message in messages:
+        data = bytes(message.data)
+        frame_id = message.arbitration_id
+        if (
+            message.is_extended_id
+            or message.is_remote_frame
+            or message.is_error_frame
+            or frame_id not in E2E_IDS
+        ):
+            seen.append(Seen(message.timestamp, frame_id, "other", data=data))
+            continue
+        try:
+            codec, counter, record = WIRE.decode(frame_id, data)
+        except DecodeError:
+            nibble = alive_counter(data) if len(data) > 1 else None
+            seen.append(Seen(message.timestamp, frame_id, "corrupt", nibble, data=data))
+            continue
+        check = monitor.check(frame_id, counter, message.timestamp)
+        verdict = "ok" if check.usable else check.value
+        seen.append(Seen(message.timestamp, frame_id, verdict, counter, record, data))
+        if verdict == "ok" and codec is NODE_COMMAND and record.Command == Request.RESET:
+            monitor.forget()
+    return seen
+
+
+def _is_reset(frame: Seen, node: str) -> bool:
+    return (
+        frame.usable
+        and frame.frame_id == NODE_COMMAND.frame_id
+        and frame.record.Command == Request.RESET
+        and frame.record.Target in RESET_TARGETS[node]
+    )
+
+
+def _states(seen: Sequence[Seen]) -> Iterable[tuple[Seen, tuple[Any, Any, int]]]:
+    """The complete joint states (the three frames of one counter), at their last frame."""
+    parts = JointStateParts()
+    for frame in seen:
+        if frame.usable and frame.frame_id in STATE_IDS:
+            assert frame.counter is not None
+            joint = STATE_IDS.index(frame.frame_id)
+            complete = parts.add(joint, frame.counter, frame.record)
+            if complete is not None:
+                yield frame, complete
+
+
+def stale_commands(seen: Sequence[Seen]) -> list[Violation]:
+    """No command with Enable was sent more than STALE_TICKS control ticks after the newest
+    complete joint state before it. Ticks are counted by the command's alive counter (a
+    dropped command was a tick too); commands before the recording's first state are not
+    judged."""
+    found = []
+    complete = {id(frame) for frame, _ in _states(seen)}
+    ticks: int | None = None
+    last: int | None = None
+    for frame in seen:
+        if id(frame) in complete:
+            ticks = 0
+            continue
+        if frame.frame_id != COMMAND.frame_id or not frame.usable:
+            continue
+        assert frame.counter is not None
+        step = 1 if last is None else (frame.counter - last) % COUNTER_MODULO or 1
+        last = frame.counter
+        if ticks is None:
+            continue
+        ticks += step
+        if frame.record.Enable and ticks > STALE_TICKS:
+            found.append(
+                Violation(
+                    "stale_command",
+                    frame.t,
+                    f"drive enabled {ticks} ticks after the newest joint state "
+                    f"(at most {STALE_TICKS})",
+                )
+            )
+    return found
+
+
+def collisions(seen: Sequence[Seen]) -> list[Violation]:
+    """The plant never reported a collision (its own truth, on the obstacle it holds)."""
+    found = []
+    colliding = False
+    for frame in seen:
+        if frame.frame_id != PLANT_STATUS.frame_id or not frame.usable:
+            continue
+        now = bool(
+            frame.record.Flags & int(PlantFlag.COLLISION)
+            or frame.record.FaultCode & int(PlantFault.COLLISION)
+        )
+        if now and not colliding:
+            found.append(Violation("collision", frame.t, "the plant reports a collision"))
+        colliding = now
+    return found
+
+
+@dataclass
+class Worlds:
+    """The worlds the plant was sent (WorldUpload transfers put back together), by number,
+    and the robot the joint states are read with; kept across the recordings of one soak."""
+
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    obstacles: dict[int, EllipticCylinder | None] = field(default_factory=dict)
+    _transfer: bytearray = field(default_factory=bytearray)
+    _length: int = 0
+
+    def feed(self, data: bytes) -> None:
+        """One WorldUpload frame (ISO-TP, normal addressing, as ``protocol/isotp_link.py``)."""
+        if not data:
+            return
+        kind = data[0] >> 4
+        if kind == SINGLE:
+            self._complete(data[1 : 1 + (data[0] & 0x0F)])
+        elif kind == FIRST and len(data) >= 2:
+            self._length = ((data[0] & 0x0F) << 8) | data[1]
+            self._transfer = bytearray(data[2:])
+        elif kind == CONSECUTIVE and self._length:
+            self._transfer += data[1:]
+            if len(self._transfer) >= self._length:
+                self._complete(bytes(self._transfer[: self._length]))
+                self._length = 0
+
+    def _complete(self, payload: bytes) -> None:
+        try:
+            world = read_world(payload)
+        except ConfigError:
+            return  # the plant refuses it too
+        self.obstacles[world.number] = world.obstacle
+
+
+def inside_obstacle(seen: Sequence[Seen], worlds: Worlds) -> tuple[list[Violation], int]:
+    """The tool's centre never entered the inflated obstacle of the world the plant holds
+    (PlantStatus.World; that world's upload read from the recordings). Also the number of
+    joint states not judged: their world's upload was not recorded."""
+    found = []
+    unjudged = 0
+    world: int | None = None
+    states = {id(frame): joints for frame, joints in _states(seen)}
+    inside = False
+    for frame in seen:
+        if frame.frame_id == WORLD_UPLOAD.frame_id:
+            worlds.feed(frame.data)
+        elif frame.frame_id == PLANT_STATUS.frame_id and frame.usable:
+            world = frame.record.World
+        elif id(frame) in states:
+            if world is None or world not in worlds.obstacles:
+                unjudged += 1
+                continue
+            obstacle = worlds.obstacles[world]
+            position = states[id(frame)][0]
+            now = obstacle is not None and obstacle.holds(*forward(worlds.robot, *position))
+            if now and not inside:
+                found.append(
+                    Violation(
+                        "inside_obstacle",
+                        frame.t,
+                        f"the tool inside world {world}'s inflated obstacle at joints "
+                        f"{tuple(round(p, 4) for p in position)}",
+                    )
+                )
+            inside = now
+    return found, unjudged
+
+
+def _starts(seen: Sequence[Seen], node: str) -> Iterable[tuple[Seen, bool]]:
+    """The node's usable statuses, each with whether it is a new process's first."""
+    status_id = CONTROLLER_STATUS.frame_id if node == "controller" else PLANT_STATUS.frame_id
+    last: float | None = None
+    for frame in seen:
+        if frame.frame_id == status_id and frame.usable:
+            new = last is not None and frame.t - last > NEW_START and frame.counter == 0
+            last = frame.t
+            yield frame, new
+
+
+def fault_latches(seen: Sequence[Seen]) -> list[Violation]:
+    """A node in fault or e-stop stays there until a reset to it (or to all) is recorded;
+    a new process starts afresh."""
+    found = []
+    for node in RESET_TARGETS:
+        latched: str | None = None
+        reset_seen = False
+        statuses = {id(frame): new for frame, new in _starts(seen, node)}
+        for frame in seen:
+            if _is_reset(frame, node):
+                reset_seen = True
+            if id(frame) not in statuses:
+                continue
+            state = NodeState(frame.record.State).name.lower()
+            if statuses[id(frame)]:
+                latched = None
+            if latched is not None and state not in LATCHED and not reset_seen:
+                found.append(
+                    Violation("fault_latch", frame.t, f"the {node} left {latched} without a reset")
+                )
+            if state in LATCHED:
+                if latched is None or reset_seen:
+                    latched, reset_seen = state, False
+            else:
+                latched = None
+    return found
+
+
+def estop_latches(seen: Sequence[Seen]) -> list[Violation]:
+    """After an EmergencyStop, every node heard within :data:`ESTOP_WITHIN` (before a reset
+    to it) says e-stop at least once; staying there is :func:`fault_latches`'s."""
+    found = []
+    stops = [frame for frame in seen if frame.frame_id == STOP.frame_id and frame.usable]
+    for node in RESET_TARGETS:
+        statuses = [frame for frame, _ in _starts(seen, node)]
+        resets = [frame.t for frame in seen if _is_reset(frame, node)]
+        for stop in stops:
+            end = min([stop.t + ESTOP_WITHIN, *(t for t in resets if t > stop.t)])
+            window = [s for s in statuses if stop.t < s.t <= end]
+            if window and not any(s.record.State == NodeState.ESTOP for s in window):
+                found.append(
+                    Violation(
+                        "estop_latch",
+                        stop.t,
+                        f"the {node} did not say e-stop in {len(window)} statuses after it",
+                    )
+                )
+    return found
+
+
+def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
+    """The plant acted only on commands that passed their CRC and counter: the CommandEcho of
+    its joint states (the counter of the last command it took) follows the usable commands'
+    counters in their order. A repeated command cannot be told from its first (same
+    counter); states are judged once one echoes a recorded command (the recording may start
+    in the middle of the stream), and a plant just reset or restarted may echo 0."""
+    found = []
+    states = {id(frame): joints[2] for frame, joints in _states(seen)}
+    commands: list[int] = []
+    pointer: int | None = None
+    fresh = True
+    last_state = -float("inf")
+    for frame in seen:
+        if frame.frame_id == COMMAND.frame_id and frame.usable:
+            assert frame.counter is not None
+            commands.append(frame.counter)
+            continue
+        if _is_reset(frame, "plant"):
+            fresh = True
+            continue
+        if id(frame) not in states:
+            continue
+        echo = states[id(frame)]
+        if frame.t - last_state > NEW_START:
+            fresh = True
+        last_state = frame.t
+        start = 0 if pointer is None else pointer
+        match = next((i for i in range(start, len(commands)) if commands[i] == echo), None)
+        if match is not None:
+            pointer = match
+            fresh = fresh and echo == 0
+        elif pointer is not None and not (fresh and echo == 0):
+            found.append(
+                Violation(
+                    "bad_frame_acted",
+                    frame.t,
+                    f"the plant echoes command counter {echo}, which no usable command "
+                    "since its last echo carried",
+                )
+            )
+            pointer = None  # judge again from the next state that matches
+    return found
+
+
+def outages(seen: Sequence[Seen]) -> list[Violation]:
+    """The system (both nodes heard within :data:`HEARD`, each ready or running) was never
+    other than up for longer than :data:`RECOVERY_BOUND`. An outage still open when the
+    recording ends is not judged (a soak's end stops the nodes first)."""
+    found = []
+    state: dict[str, str] = {}
+    heard: dict[str, float] = {}
+    down_since: float | None = None
+    for frame in seen:
+        node = NODES.get(frame.frame_id)
+        if node is None or not frame.usable:
+            continue
+        state[node] = NodeState(frame.record.State).name.lower()
+        heard[node] = frame.t
+        if len(heard) < len(NODES):
+            continue  # the recording has not heard both yet
+        up = all(state[n] in UP and frame.t - heard[n] <= HEARD for n in NODES.values())
+        if not up and down_since is None:
+            down_since = frame.t
+        elif up and down_since is not None:
+            if frame.t - down_since > RECOVERY_BOUND:
+                found.append(
+                    Violation(
+                        "recovery",
+                        down_since,
+                        f"not back to ready or running for {frame.t - down_since:.1f} s "
+                        f"(bound {RECOVERY_BOUND:g} s)",
+                    )
+                )
+            down_since = None
+    return found
+
+
+@dataclass
+class Verdict:
+    """The violations found, and how much the checker saw."""
+
+    violations: list[Violation] = field(default_factory=list)
+    recordings: int = 0
+    frames: int = 0
+    states: int = 0
+    commands: int = 0
+    unjudged_states: int = 0
+    """Joint states whose world's upload no recording holds."""
+
+    def counts(self) -> dict[str, int]:
+        counted = dict.fromkeys(INVARIANTS, 0)
+        for violation in self.violations:
+            counted[violation.invariant] += 1
+        return counted
+
+
+def check_frames(
+    messages: Iterable[can.Message], worlds: Worlds, verdict: Verdict, name: str
+) -> None:
+    """Every invariant over one recording's frames, into ``verdict``."""
+    seen = decode(messages)
+    inside, unjudged = inside_obstacle(seen, worlds)
+    found = [
+        *stale_commands(seen),
+        *collisions(seen),
+        *inside,
+        *fault_latches(seen),
+        *estop_latches(seen),
+        *bad_frames_acted(seen),
+        *outages(seen),
+    ]
+    verdict.violations += [
+        Violation(v.invariant, v.t, v.detail, name) for v in sorted(found, key=lambda v: v.t)
+    ]
+    verdict.recordings += 1
+    verdict.frames += len(seen)
+    verdict.states += sum(1 for _ in _states(seen))
+    verdict.commands += sum(1 for f in seen if f.frame_id == COMMAND.frame_id)
+    verdict.unjudged_states += unjudged
+
+
+def readable(path: Path) -> tuple[Path | None, str]:
+    """The file to read ``path``'s frames from: itself if it is complete, else its
+    ``.recovered.mcap`` twin if that holds every complete chunk of it; None and why not."""
+    with tempfile.TemporaryDirectory(prefix="scara-soak-") as folder:
+        try:
+            report = recover(path, Path(folder) / "check.mcap")
+        except RecordingError as error:
+            return None, str(error)
+        if report.was_complete:
+            return path, ""
+        twin = path.with_suffix(".recovered.mcap")
+        if not twin.exists():
+            return None, "cut short and not recovered (scara-record recover)"
+        try:
+            again = recover(twin, Path(folder) / "twin.mcap")
+        except RecordingError as error:
+            return None, f"its recovered file: {error}"
+    if not again.was_complete or again.frames != report.frames:
+        return None, (
+            f"its recovered file holds {again.frames} frames of the {report.frames} in its "
+            "complete chunks"
+        )
+    return twin, ""
+
+
+def _worlds_from(paths: Sequence[Path]) -> Worlds:
+    """The robot and the start-up world (number 0) from the first recording that has the
+    scenario attached (the recorder's ``--scenario``: the plant's own file)."""
+    worlds = Worlds()
+    for path in paths:
+        try:
+            attached = read_attachments(path).get("scenario.json")
+        except RecordingError:
+            continue
+        if attached is not None:
+            scenario = parse_scenario(json.loads(attached))
+            worlds.robot = scenario.robot
+            worlds.obstacles[STARTUP_WORLD] = scenario.obstacle
+            break
+    return worlds
+
+
+def recordings_of(target: Path) -> list[Path]:
+    """A soak's recordings in the order they were made (a run folder, or its
+    ``recordings/``), or the one file named."""
+    if target.is_file():
+        return [target]
+    folder = target / "recordings" if (target / "recordings").is_dir() else target
+    return sorted(p for p in folder.glob("*.mcap") if not p.name.endswith(".recovered.mcap"))
+
+
+def check(target: Path) -> Verdict:
+    """Every invariant over the recordings of ``target`` (a soak's folder, or one file)."""
+    verdict = Verdict()
+    paths = recordings_of(target)
+    readable_paths = []
+    for path in paths:
+        source, why = readable(path)
+        if source is None:
+            verdict.violations.append(Violation("recording", 0.0, why, path.name))
+        else:
+            readable_paths.append(source)
+    worlds = _worlds_from(readable_paths)
+    for source in readable_paths:
+        with source.open("rb") as stream:
+            check_frames(frames(stream), worlds, verdict, source.name)
+    return verdict
