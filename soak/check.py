@@ -13,6 +13,7 @@ Each invariant is a pure function over the frames of one recording, decoded once
 
 from __future__ import annotations
 
+import bisect
 import json
 import tempfile
 from collections.abc import Iterable, Sequence
@@ -23,7 +24,7 @@ from typing import Any
 import can
 
 from controller.node import STALE_TICKS
-from protocol.codec import COUNTER_MODULO, WIRE, alive_counter
+from protocol.codec import WIRE, alive_counter
 from protocol.config import RobotConfig
 from protocol.e2e import E2EMonitor
 from protocol.errors import ConfigError, DecodeError
@@ -70,6 +71,16 @@ ESTOP_WITHIN = 1.0
 """s after an EmergencyStop by which every node heard must say e-stop."""
 RECOVERY_BOUND = 15.0
 """s the system may be other than up (both nodes heard, each ready or running) at a time."""
+SWAP = 0.010
+"""s by which the recorder's order of two senders' frames may differ from the order the nodes
+saw them in: the router forwards each sample to each receiver on a queue of its own, and on a
+loaded machine a plant's answer was recorded up to 5 ms before the command it answers, or a
+burst of commands after the states they were computed from. A joint state recorded up to
+this after a command counts as before it, and a command recorded up to this after a state as
+sent before it: a violation can be missed, not invented."""
+SYNC_WINDOW = 32
+"""Commands back from a joint state among which its echo is looked for before the plant's
+echoes are followed (the start of a recording, or after a violation)."""
 LATCHED = ("fault", "estop")
 UP = ("ready", "running")
 E2E_IDS = frozenset(WIRE.by_id)
@@ -161,34 +172,37 @@ def _states(seen: Sequence[Seen]) -> Iterable[tuple[Seen, tuple[Any, Any, int]]]
 
 def stale_commands(seen: Sequence[Seen]) -> list[Violation]:
     """No command with Enable was sent more than STALE_TICKS control ticks after the newest
-    complete joint state before it. Ticks are counted by the command's alive counter (a
-    dropped command was a tick too); commands before the recording's first state are not
-    judged."""
+    complete joint state before it. Ticks are the commands recorded after the state (a
+    corrupt one too; a duplicate or one held back is no tick of its own), not counting those
+    recorded up to :data:`SWAP` after it (the controller may have sent them before the state
+    reached it) nor the commands the wire dropped (when they were sent, no frame says); a
+    state recorded up to SWAP after a command counts as before it. So a violation can be
+    missed, never invented. Commands before the recording's first state are not judged."""
     found = []
     complete = {id(frame) for frame, _ in _states(seen)}
+    times = [frame.t for frame in seen if id(frame) in complete]
     ticks: int | None = None
-    last: int | None = None
+    state_time = -float("inf")
     for frame in seen:
         if id(frame) in complete:
-            ticks = 0
+            ticks, state_time = 0, frame.t
             continue
-        if frame.frame_id != COMMAND.frame_id or not frame.usable:
+        if frame.frame_id != COMMAND.frame_id or frame.check in ("repeated", "stale"):
             continue
-        assert frame.counter is not None
-        step = 1 if last is None else (frame.counter - last) % COUNTER_MODULO or 1
-        last = frame.counter
-        if ticks is None:
+        if ticks is None or frame.t - state_time <= SWAP:
             continue
-        ticks += step
-        if frame.record.Enable and ticks > STALE_TICKS:
-            found.append(
-                Violation(
-                    "stale_command",
-                    frame.t,
-                    f"drive enabled {ticks} ticks after the newest joint state "
-                    f"(at most {STALE_TICKS})",
-                )
+        ticks += 1
+        if not frame.usable or not frame.record.Enable or ticks <= STALE_TICKS:
+            continue
+        if bisect.bisect_right(times, frame.t + SWAP) > bisect.bisect_right(times, frame.t):
+            continue  # a state recorded just after it
+        found.append(
+            Violation(
+                "stale_command",
+                frame.t,
+                f"drive enabled {ticks} ticks after the newest joint state (at most {STALE_TICKS})",
             )
+        )
     return found
 
 
@@ -304,15 +318,15 @@ def fault_latches(seen: Sequence[Seen]) -> list[Violation]:
             state = NodeState(frame.record.State).name.lower()
             if statuses[id(frame)]:
                 latched = None
-            if latched is not None and state not in LATCHED and not reset_seen:
+            if state in LATCHED:
+                if latched is None:  # a reset before it was for an earlier latch
+                    latched, reset_seen = state, False
+                continue  # (a status sent before the node took the reset may follow it)
+            if latched is not None and not reset_seen:
                 found.append(
                     Violation("fault_latch", frame.t, f"the {node} left {latched} without a reset")
                 )
-            if state in LATCHED:
-                if latched is None or reset_seen:
-                    latched, reset_seen = state, False
-            else:
-                latched = None
+            latched = None
     return found
 
 
@@ -341,35 +355,33 @@ def estop_latches(seen: Sequence[Seen]) -> list[Violation]:
 def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
     """The plant acted only on commands that passed their CRC and counter: the CommandEcho of
     its joint states (the counter of the last command it took) follows the usable commands'
-    counters in their order. A repeated command cannot be told from its first (same
-    counter); states are judged once one echoes a recorded command (the recording may start
-    in the middle of the stream), and a plant just reset or restarted may echo 0."""
+    counters in their order. A command recorded up to :data:`SWAP` after the state that
+    echoes it counts as before it. A repeated command cannot be told from its first (same
+    counter); an echo of 0 is not judged (a plant reset or restarted says 0 until its first
+    command); states are judged once one echoes a recorded command (the recording may start
+    in the middle of the stream)."""
     found = []
     states = {id(frame): joints[2] for frame, joints in _states(seen)}
-    commands: list[int] = []
+    commands = [
+        (frame.t, frame.counter, index)
+        for index, frame in enumerate(seen)
+        if frame.frame_id == COMMAND.frame_id and frame.usable
+    ]
+    available = 0
     pointer: int | None = None
-    fresh = True
-    last_state = -float("inf")
-    for frame in seen:
-        if frame.frame_id == COMMAND.frame_id and frame.usable:
-            assert frame.counter is not None
-            commands.append(frame.counter)
+    for index, frame in enumerate(seen):
+        echo = states.get(id(frame))
+        if echo is None or echo == 0:
             continue
-        if _is_reset(frame, "plant"):
-            fresh = True
-            continue
-        if id(frame) not in states:
-            continue
-        echo = states[id(frame)]
-        if frame.t - last_state > NEW_START:
-            fresh = True
-        last_state = frame.t
-        start = 0 if pointer is None else pointer
-        match = next((i for i in range(start, len(commands)) if commands[i] == echo), None)
+        while available < len(commands) and (
+            commands[available][2] < index or commands[available][0] <= frame.t + SWAP
+        ):
+            available += 1
+        start = max(0, available - SYNC_WINDOW) if pointer is None else pointer
+        match = next((i for i in range(start, available) if commands[i][1] == echo), None)
         if match is not None:
             pointer = match
-            fresh = fresh and echo == 0
-        elif pointer is not None and not (fresh and echo == 0):
+        elif pointer is not None:
             found.append(
                 Violation(
                     "bad_frame_acted",

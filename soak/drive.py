@@ -160,6 +160,8 @@ class Driver:
         self.number = 0
         self.task: Scenario = tasks(0)
         self._tries = 0
+        self._pressing: list[tuple[str, Any]] = []
+        """The buttons of the task under way not yet accepted."""
         self._running = False
         self._seen_running = False
         self._accepted_at = 0.0
@@ -210,6 +212,7 @@ class Driver:
         self.number += 1
         self.task = self.tasks(self.number)
         self._tries = 0
+        self._pressing = []
 
     def current_obstacle(self) -> dict[str, Any]:
         """The obstacle command's body of the task under way."""
@@ -219,26 +222,40 @@ class Driver:
         )
         return {"obstacle": obstacle}
 
-    def _start(self) -> None:
-        """The five buttons: no obstacle (the new waypoints may stand in the old one),
-        waypoints, obstacle, mode, run."""
+    def _buttons(self) -> list[tuple[str, Any]]:
+        """The five buttons for the task under way: no obstacle (the new waypoints may stand
+        in the old one), waypoints, obstacle, mode, run."""
         task = self.task
         waypoints = [{"t": w.t, "x": w.x, "y": w.y, "z": w.z} for w in task.waypoints]
-        for name, body in (
+        return [
             ("obstacle", {"obstacle": None}),
             ("waypoints", {"waypoints": waypoints}),
             ("obstacle", self.current_obstacle()),
             ("mode", {"mode": task.mode.value}),
             ("run", None),
-        ):
-            reply = self.operator.command(name, body)
-            if reply is None or not reply.get("accepted"):
-                reason = "no_reply" if reply is None else reply.get("reason", "error")
-                self.tally.refused(f"{name}:{reason}")
-                if reason == "approach_blocked":  # the arm is where this task cannot start
-                    self.operator.command("reset")
-                    self.tally.resets += 1
-                return
+        ]
+
+    def _start(self) -> None:
+        """Press the task's next button; one refused or unanswered is pressed again at the
+        next step (the controller answers once the plant holds the world, a frame of the
+        transfer may be lost), after a reset if the arm is where the task cannot start."""
+        if not self._pressing:
+            self._pressing = self._buttons()
+        name, body = self._pressing[0]
+        reply = self.operator.command(name, body)
+        first = len(self._pressing) == len(self._buttons())
+        if first and reply is not None and reply.get("reason") == "no_scenario":
+            reply = {"accepted": True}  # no task yet: no obstacle to take away
+        if reply is None or not reply.get("accepted"):
+            reason = "no_reply" if reply is None else str(reply.get("reason", "error"))
+            self.tally.refused(f"{name}:{reason}")
+            if reason == "approach_blocked":
+                self.operator.command("reset")
+                self.tally.resets += 1
+            return
+        self._pressing.pop(0)
+        if self._pressing:
+            return
         self.tally.started += 1
         self._running = True
         self._seen_running = False

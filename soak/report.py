@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from soak.check import INVARIANTS, RECOVERY_BOUND, Verdict
 from soak.disturb import Done
 from soak.drive import Tally
 from soak.health import Growth
+from soak.schedule import Kind
 
 MEMORY_BOUND = 10 * 2**20
 """bytes a long-lived process's resident memory may grow by within one start."""
@@ -59,6 +60,17 @@ class Report:
             if back is None or back > RECOVERY_BOUND
         ]
 
+    def read_only_answered(self) -> list[str]:
+        """Replies the read-only user got to its commands: the access control let one
+        through."""
+        return [
+            reply
+            for done in self.done
+            if done.disturbance.kind is Kind.READ_ONLY
+            for reply in done.replies
+            if not reply.endswith(":no_reply")
+        ]
+
     def too_much_growth(self) -> list[Growth]:
         return [
             g
@@ -68,11 +80,12 @@ class Report:
 
     @property
     def passed(self) -> bool:
-        return not (
+        return self.tally.completed > 0 and not (
             self.verdict.violations
             or self.unrecovered()
             or self.ended
             or self.too_much_growth()
+            or self.read_only_answered()
             or self.interrupted
         )
 
@@ -100,7 +113,7 @@ class Report:
                 }
                 for done, back in zip(self.done, self.back, strict=True)
             ],
-            "tasks": vars(self.tally),
+            "tasks": asdict(self.tally),
             "faults_raised": self.raised,
             "faults_cleared": self.cleared,
             "invariants": self.verdict.counts(),
@@ -120,7 +133,8 @@ class Report:
                 "commands": self.verdict.commands,
                 "states_unjudged": self.verdict.unjudged_states,
             },
-            "health": [vars(g) | {"rss_growth": g.rss_growth} for g in self.growths],
+            "health": [asdict(g) | {"rss_growth": g.rss_growth} for g in self.growths],
+            "read_only_answered": self.read_only_answered(),
             "ended_by_themselves": self.ended,
         }
 
@@ -191,6 +205,8 @@ def format_report(report: Report) -> str:
         )
     for g in report.too_much_growth():
         lines.append(f"  GROWS: {g.process} start {g.start}")
+    for reply in report.read_only_answered():
+        lines.append(f"READ-ONLY USER ANSWERED: {reply}")
     if report.ended:
         lines.append(f"ended by themselves: {', '.join(report.ended)}")
     lines += ["", "PASSED" if report.passed else f"FAILED; reproduce: {report.reproduce()}"]

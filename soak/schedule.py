@@ -41,7 +41,7 @@ FLOOD_RATE = 1000.0
 """Foreign frames per second in a flood: about what the loop itself puts on the bus."""
 BURST = (2, 6)
 """Commands in an e-stop, stop or read-only burst."""
-MEAN_GAP = 4.0
+MEAN_GAP = 6.0
 """s between disturbances, on average (from half to one and a half times it)."""
 FIRST = 3.0
 """s before the first disturbance: the first task under way."""

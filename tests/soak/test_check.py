@@ -29,6 +29,7 @@ from recorder.mcap_can import MCAPWriter
 from recorder.recover import recover
 from soak.check import (
     RECOVERY_BOUND,
+    SWAP,
     Worlds,
     bad_frames_acted,
     collisions,
@@ -112,12 +113,14 @@ def test_a_command_enabled_more_than_three_ticks_after_the_last_state_is_caught(
     bus = Bus()
     for _ in range(5):
         bus.tick()
+    bus.t += SWAP  # (commands recorded sooner may have left before the state arrived)
     for _ in range(3):
         bus.command()  # the plant's answers lost: three ticks on the last state is allowed
     held = bus.command(enable=False)  # the hold
     bus.state(held)  # the plant heard again: the controller resumes
     bus.tick()
     assert stale_commands(bus.seen()) == []
+    bus.t += SWAP
     for _ in range(4):
         bus.command()
     found = stale_commands(bus.seen())
@@ -125,12 +128,21 @@ def test_a_command_enabled_more_than_three_ticks_after_the_last_state_is_caught(
     assert "4 ticks" in found[0].detail
 
 
-def test_a_dropped_command_counts_as_a_tick() -> None:
+def test_a_corrupt_command_is_a_tick_and_a_state_just_after_a_command_counts_before_it() -> None:
     bus = Bus()
     bus.tick()
-    last = bus.command()
-    bus.command(counter=(last + 3) % 16)  # two commands between never reached the bus
+    bus.t += SWAP
+    bus.command()
+    counter = bus.next(COMMAND)
+    bus.send(COMMAND.frame_id, bytes(8))  # corrupt: no CRC holds for zeros here
+    bus.command()
+    bus.command()
     assert [v.invariant for v in stale_commands(bus.seen())] == ["stale_command"]
+    bus.frames.insert(-1, bus.frames[-1])  # nothing: a duplicate of the last is no tick
+    assert counter >= 0 and len(stale_commands(bus.seen())) == 1
+    bus.t += SWAP / 2
+    bus.state(counter)  # recorded just after the last command
+    assert stale_commands(bus.seen()) == []
 
 
 def test_a_collision_the_plant_reports_is_caught_once() -> None:
@@ -183,8 +195,8 @@ def test_a_fault_left_without_a_reset_is_caught_and_one_left_after_a_reset_is_no
     bus = Bus()
     bus.both("running", "running")
     bus.both("fault", "running")
-    bus.both("fault", "running")
     bus.node_command(Request.RESET)
+    bus.both("fault", "running")  # sent before the controller took the reset
     bus.both("ready", "ready")
     bus.both("estop", "estop")
     assert fault_latches(bus.seen()) == []
