@@ -1,0 +1,28 @@
+"""The soak's health samples (``soak/health.py``): memory and file handles from ``/proc``, and
+the growth of each start past its warm-up."""
+
+from __future__ import annotations
+
+import os
+
+from soak.health import WARM_UP, Health, Sample, sample
+
+
+def test_a_live_process_is_sampled_and_a_gone_one_is_not() -> None:
+    taken = sample(os.getpid())
+    assert taken is not None and taken[0] > 10 * 2**20 and taken[1] >= 3
+    assert sample(2**22 + 12345) is None  # above any pid_max
+
+
+def test_growth_counts_from_the_first_sample_past_the_warm_up() -> None:
+    health = Health(dict)
+    health.samples[("bridge", 0)] = [
+        Sample(1.0, 10, 5),  # warming up: not counted
+        Sample(WARM_UP, 50, 8),
+        Sample(WARM_UP + 30, 70, 9),
+        Sample(WARM_UP + 60, 60, 8),
+    ]
+    health.samples[("plant", 2)] = [Sample(WARM_UP + 1, 40, 4)]  # one sample: no growth yet
+    (growth,) = health.growths()
+    assert (growth.process, growth.start, growth.seconds) == ("bridge", 0, 60)
+    assert (growth.rss_growth, growth.fds_growth) == (20, 1)
