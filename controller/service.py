@@ -255,6 +255,10 @@ class ServiceNode(ControllerNode):
             self.log.info("task refused: %s", error)
             self._answer(Answered.SCENARIO, ticket, reason_of(error))
             return
+        if self._holds_the_arm(task):
+            self.log.info("task refused: its obstacle stands where the arm is")
+            self._answer(Answered.SCENARIO, ticket, Reason.INSIDE_OBSTACLE)
+            return
         self.task = task
         self.log.info("task %s set (%d waypoints)", task.name, len(task.waypoints))
         world = self.world
@@ -269,6 +273,14 @@ class ServiceNode(ControllerNode):
         if self._task_answer is not None:  # the task before, never held: its answer now
             self._answer(Answered.SCENARIO, self._task_answer[0], Reason.NONE)
         self._task_answer = (ticket, self.clock() + WORLD_WAIT)  # answered by serve()
+
+    def _holds_the_arm(self, task: Scenario) -> bool:
+        """The task's inflated obstacle holds the tool where the arm stands now: the plant
+        would judge it a collision the moment it took the world, and no safe motion leads out
+        (an obstacle set on the arm once put the plant in collision)."""
+        if self.state is None or task.obstacle is None:
+            return False
+        return task.obstacle.holds(*forward(task.robot, *self.state.position))
 
 
 def with_approach(task: Scenario, tcp: tuple[float, float, float]) -> tuple[Scenario, int]:

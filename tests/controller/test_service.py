@@ -329,6 +329,30 @@ def test_the_plant_judges_collisions_by_the_obstacle_of_the_task_in_force(rig: R
     assert rig.plant.obstacle == TASK.obstacle.grown(TASK.tool_radius - TASK.obstacle.inflation)
 
 
+def test_an_obstacle_set_where_the_arm_stands_is_refused_and_the_plant_sees_no_collision(
+    rig: Rig,
+) -> None:
+    """An obstacle whose inflated section holds the tool where the arm stands (at the
+    reference's first waypoint), its waypoints elsewhere: refused, the world unchanged. It was
+    once accepted, and the plant, given the world, judged the arm in collision at once (found
+    by scara-soak, seed 1: the operator's next task set its obstacle over the arm)."""
+    assert rig.ask(TASK).accepted
+    rig.step(5)  # the service has the arm's joint state
+    world = rig.plant.world.number
+    first = REFERENCE.waypoints[0]
+    document = task_document(TASK)
+    document["waypoints"] = document["waypoints"][1:]
+    document["obstacle"] |= {
+        "x": first.x, "y": first.y, "long_diameter": 0.04, "short_diameter": 0.03,
+    }  # fmt: skip
+    on_the_arm = parse_task(document, BASE)
+    assert rig.ask(on_the_arm) == Answer(False, "inside_obstacle")
+    assert rig.service.task == TASK
+    rig.step(20)
+    assert rig.plant.world.number == world and not rig.plant.fault
+    assert rig.plant.stats.collisions == 0
+
+
 def test_a_restarted_plant_gets_the_world_again_and_a_plant_without_it_runs_nothing(
     rig: Rig,
 ) -> None:
