@@ -27,6 +27,9 @@ WATCH_PERIOD = 0.1
 """s between two looks at the robot's status."""
 ANSWER_TIME = 5.0
 """s a command's reply may take: the bridge waits 2 s for the controller, a world 1 s."""
+AWAY_FROM_HOME = ("approach_blocked", "inside_obstacle")
+"""Refusals a reset cures: the arm (where the last run left it) is in the way of the task's
+start or under its obstacle, and a reset brings it home, where every soak task can start."""
 RETRIES = 3
 """Runs of one task that may end otherwise than done before the driver moves on."""
 RESET_EVERY = 1.0
@@ -238,7 +241,8 @@ class Driver:
     def _start(self) -> None:
         """Press the task's next button; one refused or unanswered is pressed again at the
         next step (the controller answers once the plant holds the world, a frame of the
-        transfer may be lost), after a reset if the arm is where the task cannot start."""
+        transfer may be lost), after a reset if the arm is where the task cannot start or
+        its obstacle stands."""
         if not self._pressing:
             self._pressing = self._buttons()
         name, body = self._pressing[0]
@@ -249,7 +253,7 @@ class Driver:
         if reply is None or not reply.get("accepted"):
             reason = "no_reply" if reply is None else str(reply.get("reason", "error"))
             self.tally.refused(f"{name}:{reason}")
-            if reason == "approach_blocked":
+            if reason in AWAY_FROM_HOME:
                 self.operator.command("reset")
                 self.tally.resets += 1
             return

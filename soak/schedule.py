@@ -12,7 +12,8 @@ import random
 from dataclasses import dataclass
 from enum import Enum
 
-from controller.planner import check_plan, load_planned
+from controller.planner import load_planned
+from controller.service import with_approach
 from protocol.errors import ConfigError
 from protocol.faults import FaultSpec
 from protocol.scenario import Mode, Scenario
@@ -161,9 +162,10 @@ def home() -> Scenario:
 
 def task(seed: int, number: int, start: Scenario) -> Scenario:
     """The ``number``-th task of the soak (0 the first): the next generated scenario, of
-    :data:`TASK_FAMILIES` in turn, in a mode drawn from the seed, that is feasible (its plan
-    passes the controller's checks) and whose inflated obstacle leaves the home of ``start``
-    clear (a reset or a restarted plant puts the arm there)."""
+    :data:`TASK_FAMILIES` in turn, in a mode drawn from the seed, that is feasible from the
+    home of ``start`` (its plan, led there by the controller's approach segment, passes the
+    controller's checks) and whose inflated obstacle leaves that home clear (a reset or a
+    restarted plant puts the arm there)."""
     draw = random.Random(f"soak-{seed}-task-{number}")
     family = TASK_FAMILIES[number % len(TASK_FAMILIES)]
     mode = draw.choice(list(Mode))
@@ -177,7 +179,7 @@ def task(seed: int, number: int, start: Scenario) -> Scenario:
         ):
             continue
         try:
-            check_plan(scenario)
+            with_approach(scenario, (home_point.x, home_point.y, home_point.z))
         except ConfigError:
             continue
         return scenario
