@@ -24,7 +24,7 @@ from typing import Any
 import can
 
 from controller.node import STALE_TICKS
-from protocol.codec import WIRE, alive_counter
+from protocol.codec import COUNTER_MODULO, WIRE, alive_counter
 from protocol.config import RobotConfig
 from protocol.e2e import E2EMonitor
 from protocol.errors import ConfigError, DecodeError
@@ -62,25 +62,39 @@ INVARIANTS = (
     "recovery",
 )
 """Every invariant, by the name the report counts its violations under."""
-NEW_START = 1.0
-"""s of silence after which a node whose status counter starts again at 0 is taken for a new
-process (a restart: it has no latch to keep); a pause of up to 0.5 s is not one."""
+NEW_START = 0.25
+"""s of silence after which a node whose counter starts again at 0 (its status's, the plant's
+joint state's) is taken for a new process: a restart (it has no latch to keep, its echo
+starts over). A pause that happens to end on a counter of 0 is taken for one too, which
+only leaves something unjudged."""
 HEARD = 0.5
 """s without a node's status after which it is taken for not heard."""
 ESTOP_WITHIN = 1.0
 """s after an EmergencyStop by which every node heard must say e-stop."""
 RECOVERY_BOUND = 15.0
 """s the system may be other than up (both nodes heard, each ready or running) at a time."""
-SWAP = 0.010
+ORDER_SKEW = 0.1
 """s by which the recorder's order of two senders' frames may differ from the order the nodes
-saw them in: the router forwards each sample to each receiver on a queue of its own, and on a
-loaded machine a plant's answer was recorded up to 5 ms before the command it answers, or a
-burst of commands after the states they were computed from. A joint state recorded up to
-this after a command counts as before it, and a command recorded up to this after a state as
-sent before it: a violation can be missed, not invented."""
-SYNC_WINDOW = 32
-"""Commands back from a joint state among which its echo is looked for before the plant's
-echoes are followed (the start of a recording, or after a violation)."""
+saw them in. The router forwards each frame to each receiver on a queue of its own: on this
+loaded 2-core machine a plant's answer was recorded 24 ms before the command it answers
+(after a pause of the recorder), and during a flood a controller's commands came in a burst
+18 ms after the states they were computed from. A joint state recorded up to this after a
+command counts as before it, and a command recorded up to this after a state as sent before
+it: a violation can be missed, not invented."""
+AHEAD = 0.030
+"""s by which a command may be recorded after a plant's state that echoes it (24 ms seen,
+after a pause of the recorder): less than the 32 ms after which its counter comes again, so
+that the echoes are not followed along the commands of a later round."""
+MAX_SKIP = 12
+"""Usable commands a plant's new echo may lie beyond the one it echoed before: answers the
+wire lost (at 10 % loss per frame, a set of three is lost 27 % of the time, twelve in a row
+once in ten million commands). A taken command 16 on has the same counter, so a corrupt or
+stale one taken is 15 on."""
+CONFIRMED = 8
+"""Echoes in a row along one way before an echo off it is judged: the way is the plant's."""
+LOST_WAY = 3
+"""Echoes in a row off a way through the commands after which the plant is taken not to be
+on it."""
 LATCHED = ("fault", "estop")
 UP = ("ready", "running")
 E2E_IDS = frozenset(WIRE.by_id)
@@ -174,9 +188,9 @@ def stale_commands(seen: Sequence[Seen]) -> list[Violation]:
     """No command with Enable was sent more than STALE_TICKS control ticks after the newest
     complete joint state before it. Ticks are the commands recorded after the state (a
     corrupt one too; a duplicate or one held back is no tick of its own), not counting those
-    recorded up to :data:`SWAP` after it (the controller may have sent them before the state
+    recorded up to :data:`ORDER_SKEW` after it (the controller may have sent them before the state
     reached it) nor the commands the wire dropped (when they were sent, no frame says); a
-    state recorded up to SWAP after a command counts as before it. So a violation can be
+    state recorded up to ORDER_SKEW after a command counts as before it. So a violation can be
     missed, never invented. Commands before the recording's first state are not judged."""
     found = []
     complete = {id(frame) for frame, _ in _states(seen)}
@@ -189,12 +203,12 @@ def stale_commands(seen: Sequence[Seen]) -> list[Violation]:
             continue
         if frame.frame_id != COMMAND.frame_id or frame.check in ("repeated", "stale"):
             continue
-        if ticks is None or frame.t - state_time <= SWAP:
+        if ticks is None or frame.t - state_time <= ORDER_SKEW:
             continue
         ticks += 1
         if not frame.usable or not frame.record.Enable or ticks <= STALE_TICKS:
             continue
-        if bisect.bisect_right(times, frame.t + SWAP) > bisect.bisect_right(times, frame.t):
+        if bisect.bisect_right(times, frame.t + ORDER_SKEW) > bisect.bisect_right(times, frame.t):
             continue  # a state recorded just after it
         found.append(
             Violation(
@@ -353,45 +367,106 @@ def estop_latches(seen: Sequence[Seen]) -> list[Violation]:
 
 
 def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
-    """The plant acted only on commands that passed their CRC and counter: the CommandEcho of
-    its joint states (the counter of the last command it took) follows the usable commands'
-    counters in their order. A command recorded up to :data:`SWAP` after the state that
-    echoes it counts as before it. A repeated command cannot be told from its first (same
-    counter); an echo of 0 is not judged (a plant reset or restarted says 0 until its first
-    command); states are judged once one echoes a recorded command (the recording may start
-    in the middle of the stream)."""
+    """The plant acted only on commands that passed their CRC and counter. The CommandEcho of
+    its joint states (the counter of the last command it took) changes along the usable
+    commands' counters in their order, each sender's frames being in the order sent whatever
+    the recorder's interleaving: each new echo is one of the next :data:`MAX_SKIP` usable
+    commands after the last one echoed (the plant answers every command it takes, and an
+    answer the wire lost skips one). An echo that is not, where a command that failed its CRC
+    or counter carried that counter among those next commands, is a bad frame acted on; one
+    that no recorded frame carried is a command the recorder missed (its start, a pause), not
+    judged, and so are an echo of 0 (a plant reset or restarted says 0 before its first
+    command) and a duplicate (its counter is its first's).
+
+    After a reset or a restart of the plant, and at a recording's start, the echoes are
+    followed from every command with the counter of the first one recorded from
+    :data:`ORDER_SKEW` before it to :data:`AHEAD` after it, and along every way through the
+    commands that keeps within AHEAD of the echoes. An echo is judged when one way is left
+    that the last :data:`CONFIRMED` echoes followed, and the next echo follows it too."""
     found = []
     states = {id(frame): joints[2] for frame, joints in _states(seen)}
     commands = [
-        (frame.t, frame.counter, index)
-        for index, frame in enumerate(seen)
+        (frame.t, frame.counter)
+        for frame in seen
         if frame.frame_id == COMMAND.frame_id and frame.usable
     ]
-    available = 0
-    pointer: int | None = None
-    for index, frame in enumerate(seen):
-        echo = states.get(id(frame))
-        if echo is None or echo == 0:
+    bad: dict[int, list[int]] = {}
+    """For each usable command (by index), the counters of the bad commands recorded just
+    before it."""
+    usable = 0
+    for frame in seen:
+        if frame.frame_id != COMMAND.frame_id:
             continue
-        while available < len(commands) and (
-            commands[available][2] < index or commands[available][0] <= frame.t + SWAP
-        ):
-            available += 1
-        start = max(0, available - SYNC_WINDOW) if pointer is None else pointer
-        match = next((i for i in range(start, available) if commands[i][1] == echo), None)
-        if match is not None:
-            pointer = match
-        elif pointer is not None:
-            found.append(
-                Violation(
+        if frame.usable:
+            usable += 1
+        elif frame.counter is not None:
+            bad.setdefault(usable, []).append(frame.counter)
+    ways: dict[int, int] = {}
+    """Where in the commands the plant may be (one index once its echoes are followed), each
+    with the echoes in a row it has missed."""
+    streak = 0
+    """Echoes in a row that continued the one way left."""
+    suspect: Violation | None = None
+    """An echo off the way, only a bad command carrying its counter: a violation once the
+    next echo continues the way (else the way was not the plant's)."""
+    last_echo: int | None = None
+    last_state = -float("inf")
+    for frame in seen:
+        if _is_reset(frame, "plant"):
+            ways, streak, suspect, last_echo = {}, 0, None, None
+            continue
+        echo = states.get(id(frame))
+        if echo is None:
+            continue
+        if frame.t - last_state > NEW_START and frame.counter == 0:
+            ways, streak, suspect, last_echo = {}, 0, None, None  # a new plant
+        last_state = frame.t
+        if echo in (last_echo, 0):
+            continue
+        last_echo = echo
+        if not ways:
+            ways = dict.fromkeys(_near(commands, echo, frame.t), 0)
+            continue
+        onward: dict[int, int] = {}
+        for way, missed in ways.items():
+            step = _next(commands, way, echo)
+            if step is not None and commands[step][0] <= frame.t + AHEAD:
+                onward[step] = 0
+            elif missed + 1 < LOST_WAY:  # a command the recording lacks, or a bad one taken
+                onward[way] = missed + 1
+        advanced = len(onward) == 1 and 0 in onward.values()
+        if advanced and suspect is not None and len(ways) == 1:
+            found.append(suspect)
+        suspect = None
+        if len(ways) == 1 and not advanced and streak >= CONFIRMED:
+            (way,) = ways
+            if any(echo in bad.get(k, ()) for k in range(way + 1, way + 1 + MAX_SKIP)):
+                suspect = Violation(
                     "bad_frame_acted",
                     frame.t,
-                    f"the plant echoes command counter {echo}, which no usable command "
-                    "since its last echo carried",
+                    f"the plant echoes command counter {echo}, which only a command that "
+                    "failed its CRC or counter carried",
                 )
-            )
-            pointer = None  # judge again from the next state that matches
+        streak = streak + 1 if advanced else 0
+        ways = onward or dict.fromkeys(_near(commands, echo, frame.t), 0)
     return found
+
+
+def _near(commands: Sequence[tuple[float, int | None]], echo: int, t: float) -> list[int]:
+    """The usable commands with counter ``echo`` recorded from :data:`ORDER_SKEW` before ``t``
+    to :data:`AHEAD` after it."""
+    start = bisect.bisect_left(commands, (t - ORDER_SKEW,))
+    end = bisect.bisect_right(commands, (t + AHEAD, COUNTER_MODULO))
+    return [i for i in range(start, end) if commands[i][1] == echo]
+
+
+def _next(commands: Sequence[tuple[float, int | None]], way: int, echo: int) -> int | None:
+    """The first of the :data:`MAX_SKIP` usable commands after ``way`` with counter
+    ``echo``."""
+    for index in range(way + 1, min(way + 1 + MAX_SKIP, len(commands))):
+        if commands[index][1] == echo:
+            return index
+    return None
 
 
 def outages(seen: Sequence[Seen]) -> list[Violation]:
