@@ -63,10 +63,12 @@ INVARIANTS = (
 )
 """Every invariant, by the name the report counts its violations under."""
 NEW_START = 0.25
-"""s of silence after which a node whose counter starts again at 0 (its status's, the plant's
-joint state's) is taken for a new process: a restart (it has no latch to keep, its echo
-starts over). A pause that happens to end on a counter of 0 is taken for one too, which
-only leaves something unjudged."""
+"""s of silence after which a node whose counter is back near 0 (:func:`_early`: its
+status's, the plant's joint state's) is taken for a new process: a restart (it has no latch
+to keep, its echo starts over). A pause that happens to end on such a counter is taken for
+one too, which only leaves something unjudged."""
+EARLY = 4
+"""A counter below this is a new process's (its first frames may be lost on the wire)."""
 HEARD = 0.5
 """s without a node's status after which it is taken for not heard."""
 ESTOP_WITHIN = 1.0
@@ -81,6 +83,9 @@ loaded 2-core machine a plant's answer was recorded 24 ms before the command it 
 18 ms after the states they were computed from. A joint state recorded up to this after a
 command counts as before it, and a command recorded up to this after a state as sent before
 it: a violation can be missed, not invented."""
+BACKLOG = 1.0
+"""s by which a plant's echo may come after the command it echoes: a plant paused for up to
+0.5 s takes the commands that queued meanwhile one by one, its echoes racing through them."""
 AHEAD = 0.030
 """s by which a command may be recorded after a plant's state that echoes it (24 ms seen,
 after a pause of the recorder): less than the 32 ms after which its counter comes again, so
@@ -161,6 +166,11 @@ def decode(messages: Iterable[can.Message]) -> list[Seen]:
         if verdict == "ok" and codec is NODE_COMMAND and record.Command == Request.RESET:
             monitor.forget()
     return seen
+
+
+def _early(frame: Seen) -> bool:
+    """The frame's counter is one of a new process's first (:data:`EARLY`)."""
+    return frame.counter is not None and frame.counter < EARLY
 
 
 def _is_reset(frame: Seen, node: str) -> bool:
@@ -311,7 +321,7 @@ def _starts(seen: Sequence[Seen], node: str) -> Iterable[tuple[Seen, bool]]:
     last: float | None = None
     for frame in seen:
         if frame.frame_id == status_id and frame.usable:
-            new = last is not None and frame.t - last > NEW_START and frame.counter == 0
+            new = last is not None and frame.t - last > NEW_START and _early(frame)
             last = frame.t
             yield frame, new
 
@@ -380,7 +390,7 @@ def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
 
     After a reset or a restart of the plant, and at a recording's start, the echoes are
     followed from every command with the counter of the first one recorded from
-    :data:`ORDER_SKEW` before it to :data:`AHEAD` after it, and along every way through the
+    :data:`BACKLOG` before it to :data:`AHEAD` after it, and along every way through the
     commands that keeps within AHEAD of the echoes. An echo is judged when one way is left
     that the last :data:`CONFIRMED` echoes followed, and the next echo follows it too."""
     found = []
@@ -418,7 +428,7 @@ def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
         echo = states.get(id(frame))
         if echo is None:
             continue
-        if frame.t - last_state > NEW_START and frame.counter == 0:
+        if frame.t - last_state > NEW_START and _early(frame):
             ways, streak, suspect, last_echo = {}, 0, None, None  # a new plant
         last_state = frame.t
         if echo in (last_echo, 0):
@@ -453,9 +463,9 @@ def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
 
 
 def _near(commands: Sequence[tuple[float, int | None]], echo: int, t: float) -> list[int]:
-    """The usable commands with counter ``echo`` recorded from :data:`ORDER_SKEW` before ``t``
+    """The usable commands with counter ``echo`` recorded from :data:`BACKLOG` before ``t``
     to :data:`AHEAD` after it."""
-    start = bisect.bisect_left(commands, (t - ORDER_SKEW,))
+    start = bisect.bisect_left(commands, (t - BACKLOG,))
     end = bisect.bisect_right(commands, (t + AHEAD, COUNTER_MODULO))
     return [i for i in range(start, end) if commands[i][1] == echo]
 
