@@ -13,8 +13,9 @@ from pathlib import Path
 
 SAMPLE_PERIOD = 2.0
 """s between samples."""
-WARM_UP = 15.0
-"""s after a start before its samples count: imports, sessions and first buffers."""
+WARM_UP = 60.0
+"""s after a start before its samples count: imports, sessions, first buffers and the first
+runs (the controller's log of a run is allocated as it runs)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,7 +20,7 @@ MEMORY_BOUND = 10 * 2**20
 FILES_BOUND = 4
 """open file handles a long-lived process may gain within one start (a reconnect's socket
 may outlive the one it replaced for a while)."""
-OBSERVED = 60.0
+OBSERVED = 120.0
 """s past its warm-up a start must have been watched for its growth to be judged."""
 
 

@@ -29,6 +29,9 @@ arm's home, where a run may begin."""
 TASK_FAMILIES = (Family.MIX, Family.USER, Family.MULTI, Family.FAST)
 """Where the tasks come from, in turn (the families whose obstacles stand clear of the reach
 limits: a soak tests the service, the study tests the law near its limits)."""
+LONGEST_TASK = 9.0
+"""s a task may be planned for, settling included: a soak tests the service, the study long
+tasks; a disturbance comes every few seconds, so that a longer one seldom ends done."""
 HOME_ROOM = 0.02
 """m the inflated obstacle of a task keeps clear of the home: the safety filter's room to
 move off from there."""
@@ -164,8 +167,8 @@ def task(seed: int, number: int, start: Scenario) -> Scenario:
     """The ``number``-th task of the soak (0 the first): the next generated scenario, of
     :data:`TASK_FAMILIES` in turn, in a mode drawn from the seed, that is feasible from the
     home of ``start`` (its plan, led there by the controller's approach segment, passes the
-    controller's checks) and whose inflated obstacle leaves that home clear (a reset or a
-    restarted plant puts the arm there)."""
+    controller's checks), no longer than :data:`LONGEST_TASK`, and whose inflated obstacle
+    leaves that home clear (a reset or a restarted plant puts the arm there)."""
     draw = random.Random(f"soak-{seed}-task-{number}")
     family = TASK_FAMILIES[number % len(TASK_FAMILIES)]
     mode = draw.choice(list(Mode))
@@ -173,6 +176,8 @@ def task(seed: int, number: int, start: Scenario) -> Scenario:
     for attempt in range(1000):
         index = number * 1000 + attempt
         scenario = generate_scenario_at(seed, index, mode, family)
+        if scenario.duration > LONGEST_TASK:
+            continue
         obstacle = scenario.obstacle
         if obstacle is not None and obstacle.grown(HOME_ROOM).holds(
             home_point.x, home_point.y, home_point.z

@@ -28,8 +28,8 @@ from protocol.world import World
 from recorder.mcap_can import MCAPWriter
 from recorder.recover import recover
 from soak.check import (
-    RECOVERY_BOUND,
     ORDER_SKEW,
+    RECOVERY_BOUND,
     Worlds,
     bad_frames_acted,
     collisions,
