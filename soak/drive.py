@@ -23,6 +23,8 @@ from protocol.zenoh_can.config import DEFAULT_HOST, close
 
 UP = ("ready", "running")
 """The node states of a system that is back: ready for a task, or running one."""
+STABLE = 1.0
+"""s the system must stay up to count as back after a disturbance."""
 WATCH_PERIOD = 0.1
 """s between two looks at the robot's status."""
 ANSWER_TIME = 5.0
@@ -124,10 +126,19 @@ class Watch:
             self.cleared[node] = self.cleared.get(node, 0) + 1
 
     def back_after(self, moment: float) -> float | None:
-        """s from ``moment`` until the first look at or after it that found the system up."""
+        """s from ``moment`` until the system was up to stay (for :data:`STABLE` s): a
+        disturbance may show only after it ended (a paused plant's fault comes once the
+        controller has waited its comms timeout); None if it never was."""
+        since: float | None = None
         for when, up in self.ups:
-            if when >= moment and up:
-                return when - moment
+            if when < moment:
+                continue
+            if not up:
+                since = None
+            elif since is None:
+                since = when
+            elif when - since >= STABLE:
+                return since - moment
         return None
 
     def stop(self) -> None:

@@ -1,10 +1,13 @@
 """The soak's health samples (``soak/health.py``): memory and file handles from ``/proc``, and
-the growth of each start past its warm-up."""
+the growth of each start past its warm-up; and the watch's time back after a disturbance."""
 
 from __future__ import annotations
 
 import os
 
+import pytest
+
+from soak.drive import Watch
 from soak.health import WARM_UP, Health, Sample, sample
 
 
@@ -26,3 +29,14 @@ def test_growth_counts_from_the_first_sample_past_the_warm_up() -> None:
     (growth,) = health.growths()
     assert (growth.process, growth.start, growth.seconds) == ("bridge", 0, 60)
     assert (growth.rss_growth, growth.fds_growth) == (20, 1)
+
+
+def test_a_system_is_back_once_it_stays_up() -> None:
+    """A fault that shows only after the disturbance ended counts in its time back."""
+    watch = Watch(operator=None)  # type: ignore[arg-type]
+    looks = [(0.0, True), (0.1, True), (0.2, False), (0.3, False), (0.4, True)]
+    looks += [(0.4 + 0.1 * k, True) for k in range(1, 15)]
+    watch.ups.extend(looks)
+    assert watch.back_after(0.05) == pytest.approx(0.35)
+    watch.ups.append((2.0, False))
+    assert watch.back_after(1.95) is None  # never up again for long enough
