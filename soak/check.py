@@ -102,6 +102,7 @@ LOST_WAY = 3
 on it."""
 LATCHED = ("fault", "estop")
 UP = ("ready", "running")
+"""The node states of a system that is up: ready for a task, or running one."""
 E2E_IDS = frozenset(WIRE.by_id)
 """The frames with an E2E header (the ISO-TP carriers have none)."""
 NODES = {CONTROLLER_STATUS.frame_id: "controller", PLANT_STATUS.frame_id: "plant"}

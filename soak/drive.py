@@ -20,9 +20,8 @@ from bridge.session import ZenohEndpoint
 from protocol.keys import DEFAULT_ROBOT, command_key, state_key
 from protocol.scenario import Scenario, obstacle_document
 from protocol.zenoh_can.config import DEFAULT_HOST, close
+from soak.check import UP
 
-UP = ("ready", "running")
-"""The node states of a system that is back: ready for a task, or running one."""
 STABLE = 1.0
 """s the system must stay up to count as back after a disturbance."""
 WATCH_PERIOD = 0.1
