@@ -46,6 +46,7 @@ from protocol.messages import (
     WORLD_FLOW,
     WORLD_UPLOAD,
     Answered,
+    ControllerFault,
     NodeState,
     PlantFault,
     Reason,
@@ -228,6 +229,11 @@ class ServiceNode(ControllerNode):
             return
         synced = self.plant.world == world.number
         heard = now - self.plant.heard <= PLANT_HEARD
+        if not synced and heard and self.node_state in (NodeState.RUNNING, NodeState.HOLD):
+            # A plant restarted during the run judges by its start-up world until it holds
+            # the task's again: it would see collisions with an obstacle nobody avoids.
+            self.log.warning("the plant holds world %d, not the run's", self.plant.world)
+            self.enter_fault(ControllerFault.PLANT_FAULT)
         if not synced and heard and now - self._world_sent >= WORLD_RESEND:
             self.worlds.send(world.encode())
             self._world_sent = now
