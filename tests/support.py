@@ -9,7 +9,8 @@
 - :func:`hil_marks`: the marks of a test on SocketCAN ``vcan0`` (the ``hil`` tier).
 - :func:`stretch_lockstep_waits`: the product's lockstep waits stretched by SLOWDOWN.
 - :func:`wait_while_growing`: a wait that fails only once progress has stopped.
-- :data:`NUMPY_IS_LIBM`: whether numpy's transcendental functions give libm's bits here.
+- :data:`NUMPY_IS_LIBM`: whether numpy's transcendental functions give libm's bits here, and
+  :data:`NOT_LIBM_TOLERANCE` where they do not.
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -72,7 +73,7 @@ EMULATED = SLOWDOWN > 1.0
 ``.ci/run``)."""
 
 
-def numpy_agrees_with_libm() -> bool:
+def _numpy_agrees_with_libm() -> bool:
     """Whether numpy's atan2, acos and exp give libm's bits on this CPU (a sample). Where the
     CPU has AVX-512, numpy runs code of its own for them, an ulp off libm's in a few per cent
     of calls."""
@@ -86,9 +87,12 @@ def numpy_agrees_with_libm() -> bool:
     )
 
 
-NUMPY_IS_LIBM = numpy_agrees_with_libm()
+NUMPY_IS_LIBM = _numpy_agrees_with_libm()
 """The law over arrays gives the scalar law's bits here; elsewhere the tests that compare
-them allow 1e-9 (relative and absolute)."""
+them allow :data:`NOT_LIBM_TOLERANCE`."""
+NOT_LIBM_TOLERANCE = 1e-9
+"""Relative and absolute: how far the law over arrays may be from the scalar law where numpy's
+transcendental functions are an ulp off libm's."""
 
 
 LOCKSTEP_WAITS = {GIVE_UP_VARIABLE: LOCKSTEP_GIVE_UP, STARTUP_VARIABLE: LOCKSTEP_STARTUP}

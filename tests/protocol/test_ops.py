@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support import NUMPY_IS_LIBM
+from support import NOT_LIBM_TOLERANCE, NUMPY_IS_LIBM
 
 from controller.behaviours import plan_tracking
 from controller.fuzzy import FuzzyInference, RuleBase, infer
@@ -203,7 +203,8 @@ def _at(value: Any, index: int | None) -> Any:
 
 def assert_same(found: Any, expected: Any, where: object) -> None:
     """The same bits where numpy is libm to the last bit (:data:`support.NUMPY_IS_LIBM`);
-    elsewhere the same to 1e-9, as ``tests/sim/test_one_law.py`` allows the whole law."""
+    elsewhere within :data:`support.NOT_LIBM_TOLERANCE`, as ``tests/sim/test_one_law.py``
+    allows the whole law."""
     if NUMPY_IS_LIBM:
         assert found == expected, where
         return
@@ -211,7 +212,10 @@ def assert_same(found: Any, expected: Any, where: object) -> None:
     assert len(flat_found) == len(flat_expected), where
     for got, wanted in zip(flat_found, flat_expected, strict=True):
         if isinstance(wanted, float):
-            assert math.isclose(got, wanted, rel_tol=1e-9, abs_tol=1e-9), (where, found, expected)
+            close = math.isclose(
+                got, wanted, rel_tol=NOT_LIBM_TOLERANCE, abs_tol=NOT_LIBM_TOLERANCE
+            )
+            assert close, (where, found, expected)
         else:
             assert got == wanted, (where, found, expected)
 

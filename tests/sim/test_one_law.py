@@ -13,7 +13,7 @@ from functools import cache
 from multiprocessing import get_context
 
 import numpy as np
-from support import NUMPY_IS_LIBM
+from support import NOT_LIBM_TOLERANCE, NUMPY_IS_LIBM
 from test_batch import random_scenarios
 
 from controller.runlog import RunLog
@@ -181,4 +181,10 @@ def test_the_batch_equals_the_scalar_law_tick_by_tick() -> None:
             if NUMPY_IS_LIBM:
                 np.testing.assert_array_equal(values, log[column], err_msg=where)
             else:
-                np.testing.assert_allclose(values, log[column], rtol=1e-9, atol=1e-9, err_msg=where)
+                np.testing.assert_allclose(
+                    values,
+                    log[column],
+                    rtol=NOT_LIBM_TOLERANCE,
+                    atol=NOT_LIBM_TOLERANCE,
+                    err_msg=where,
+                )
