@@ -13,6 +13,11 @@ class ConfigError(ScaraError, ValueError):
     def __init__(self, field: str, message: str) -> None:
         super().__init__(f"{field}: {message}")
         self.field = field
+        self.message = message
+
+    def __reduce__(self) -> tuple[type[ConfigError], tuple[str, str]]:
+        """Rebuilt from its own arguments: a study's worker process returns refusals."""
+        return type(self), (self.field, self.message)
 
 
 class UnreachableWaypointError(ConfigError):
@@ -60,3 +65,7 @@ class DecodeError(WireError):
         super().__init__(f"frame 0x{frame_id:03X}: {reason}")
         self.frame_id = frame_id
         self.reason = reason
+
+    def __reduce__(self) -> tuple[type[DecodeError], tuple[int, str]]:
+        """Rebuilt from its own arguments, as :class:`ConfigError`."""
+        return type(self), (self.frame_id, self.reason)

@@ -75,7 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="which scenarios: mix (the seven cases the law was tuned on, the default), inner "
         "or outer (an obstacle at a reach limit), fast (a detour at up to 0.4 m/s), multi "
-        "(several detours in one task), user (tasks as users wrote them), held_out",
+        "(several detours in one task), user (tasks as users wrote them), wide (obstacles "
+        "25-50 cm long at the inner limit: many without a way round, refused), held_out",
     )
     parser.add_argument(
         "--held-out",

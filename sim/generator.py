@@ -109,6 +109,9 @@ class Family(Enum):
     USER = "user"
     """Tasks as users of the paper's GUI wrote them: 3-6 waypoints, 0.08-0.35 m/s, the
     obstacle across a segment, at a doorstep or between two segments that double back."""
+    WIDE = "wide"
+    """:attr:`Kind.INNER` with obstacles 25-50 cm long: often neither side of one is open, and
+    the plan check refuses the task (for measuring its refusals against the brute force)."""
     HELD_OUT = "held_out"
     """Every kind of the families above in turn, with numbers of its own: for judging the
     tuned law, never for tuning it."""
@@ -159,6 +162,8 @@ FAST_SPEEDS = (0.35, 0.40)
 """m/s: the planned mean speed of the fast kind's segment across the obstacle."""
 USER_SPEEDS = (0.08, 0.35)
 """m/s: the segment speeds users wrote."""
+WIDE_DIAMETERS = (0.25, 0.50)
+"""m: the wide family's obstacles' long diameters."""
 HELD_OUT_DIAMETERS = (0.02, 0.16)
 """m: the held-out family's obstacles' long diameters (the others': DIAMETER_RANGE)."""
 HELD_OUT_SPEEDS = (0.06, 0.26)
@@ -216,6 +221,7 @@ FAMILIES: dict[Family, tuple[Recipe, ...]] = {
     Family.FAST: (_FAST,),
     Family.MULTI: (_MULTI,),
     Family.USER: _USER,
+    Family.WIDE: (replace(_INNER, diameters=WIDE_DIAMETERS),),
     Family.HELD_OUT: tuple(
         replace(recipe, diameters=HELD_OUT_DIAMETERS)
         for recipe in (
@@ -235,6 +241,7 @@ _STREAMS = {
     Family.MULTI: 4,
     Family.USER: 5,
     Family.HELD_OUT: 6,
+    Family.WIDE: 7,
 }
 """Each family's own random streams beyond the mix's (a new family takes a new number)."""
 

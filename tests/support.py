@@ -9,6 +9,8 @@
 - :func:`hil_marks`: the marks of a test on SocketCAN ``vcan0`` (the ``hil`` tier).
 - :func:`stretch_lockstep_waits`: the product's lockstep waits stretched by SLOWDOWN.
 - :func:`wait_while_growing`: a wait that fails only once progress has stopped.
+- :data:`NUMPY_IS_LIBM`: whether numpy's transcendental functions give libm's bits here, and
+  :data:`NOT_LIBM_TOLERANCE` where they do not.
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import shutil
 import signal
@@ -31,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 import pytest
 import zenoh
 
@@ -67,6 +71,28 @@ show, never whether a test passes."""
 EMULATED = SLOWDOWN > 1.0
 """The nodes run far slower than real time asks here (the software-emulated VM of
 ``.ci/run``)."""
+
+
+def _numpy_agrees_with_libm() -> bool:
+    """Whether numpy's atan2, acos and exp give libm's bits on this CPU (a sample). Where the
+    CPU has AVX-512, numpy runs code of its own for them, an ulp off libm's in a few per cent
+    of calls."""
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-7.0, 7.0, 5000), rng.uniform(-2.0, 2.0, 5000)
+    unit = rng.uniform(-1.0, 1.0, 5000)
+    return bool(
+        np.arctan2(y, x).tolist() == list(map(math.atan2, y.tolist(), x.tolist()))
+        and np.arccos(unit).tolist() == list(map(math.acos, unit.tolist()))
+        and np.exp(-np.abs(x)).tolist() == [math.exp(-abs(v)) for v in x.tolist()]
+    )
+
+
+NUMPY_IS_LIBM = _numpy_agrees_with_libm()
+"""The law over arrays gives the scalar law's bits here; elsewhere the tests that compare
+them allow :data:`NOT_LIBM_TOLERANCE`."""
+NOT_LIBM_TOLERANCE = 1e-9
+"""Relative and absolute: how far the law over arrays may be from the scalar law where numpy's
+transcendental functions are an ulp off libm's."""
 
 
 LOCKSTEP_WAITS = {GIVE_UP_VARIABLE: LOCKSTEP_GIVE_UP, STARTUP_VARIABLE: LOCKSTEP_STARTUP}

@@ -88,7 +88,7 @@ def check_host(value: object, *, allow_remote: bool, name: str = "host") -> str:
     if not allow_remote:
         raise can.CanInitializationError(
             f"zenoh {name} {value!r} is not a loopback address (127.x.x.x, ::1, localhost); "
-            "pass allow_remote=True to use another address on purpose"
+            "use another address on purpose with --allow-remote (allow_remote=True in code)"
         )
     return bare
 

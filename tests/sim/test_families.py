@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from controller.planner import check_plan
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, NoWayRoundError
 from protocol.kinematics import reach_radii
 from protocol.scenario import (
     Scenario,
@@ -37,8 +37,11 @@ from sim.generator import (
 )
 from sim.passability import FreeSpace, Verdict
 from sim.study.jobs import generate_chunk
+from sim.study.pool import Processes
 
 NEW = [family for family in Family if family not in (Family.MIX, Family.HELD_OUT)]
+PASSABLE = [family for family in NEW if family is not Family.WIDE]
+"""The families whose every segment has a way round (wide offers some that have none)."""
 COUNT = 6
 """Scenarios of each family checked (the user family's three kinds twice)."""
 
@@ -107,7 +110,7 @@ def test_a_family_is_reproducible_scenario_by_scenario(family: Family) -> None:
     ]
 
 
-@pytest.mark.parametrize("family", NEW, ids=lambda f: f.value)
+@pytest.mark.parametrize("family", PASSABLE, ids=lambda f: f.value)
 def test_a_familys_scenarios_pass_the_checks_and_keep_the_generators_rules(
     family: Family,
 ) -> None:
@@ -190,3 +193,30 @@ def test_a_chunk_is_of_its_family() -> None:
         (1, drawn(Family.MULTI)[1], None),
         (2, drawn(Family.MULTI)[2], None),
     ]
+
+
+def test_wide_offers_tasks_with_no_way_round_and_worker_processes_return_the_refusals() -> None:
+    """The study generates on worker processes; a refusal comes back to the parent whole (a
+    NoWayRoundError once stopped the pool: it could not be rebuilt from its arguments)."""
+    indices = list(range(10))
+    expected: dict[int, str] = {}
+    for index in indices:
+        try:
+            check_plan(generate_scenario_at(0, index, family=Family.WIDE))
+        except NoWayRoundError as error:
+            expected[index] = str(error)
+    assert 0 < len(expected) < len(indices)
+    executor = Processes(2, lambda _: None)
+    try:
+        chunks = list(
+            executor.map(
+                generate_chunk, [(0, indices[:5], Family.WIDE), (0, indices[5:], Family.WIDE)]
+            )
+        )
+    finally:
+        executor.close()
+    refused = {
+        index: refusal for chunk in chunks for index, _, refusal in chunk if refusal is not None
+    }
+    assert all(isinstance(refusal, NoWayRoundError) for refusal in refused.values())
+    assert {index: str(refusal) for index, refusal in refused.items()} == expected

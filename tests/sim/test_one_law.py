@@ -9,11 +9,11 @@ machine whose ``math.sin`` differs in a last bit would need them taken again.
 from __future__ import annotations
 
 import hashlib
-import math
 from functools import cache
 from multiprocessing import get_context
 
 import numpy as np
+from support import NOT_LIBM_TOLERANCE, NUMPY_IS_LIBM
 from test_batch import random_scenarios
 
 from controller.runlog import RunLog
@@ -21,19 +21,6 @@ from protocol.scenario import Mode, Scenario, load_scenario
 from sim.batch import trace_batch
 from sim.generator import generate_scenario_at
 from sim.simulation import simulate
-
-
-def numpy_agrees_with_libm() -> bool:
-    """Whether numpy's atan2, acos and exp give libm's bits on this CPU (a sample)."""
-    rng = np.random.default_rng(3)
-    x, y = rng.uniform(-7.0, 7.0, 5000), rng.uniform(-2.0, 2.0, 5000)
-    unit = rng.uniform(-1.0, 1.0, 5000)
-    return bool(
-        np.arctan2(y, x).tolist() == list(map(math.atan2, y.tolist(), x.tolist()))
-        and np.arccos(unit).tolist() == list(map(math.acos, unit.tolist()))
-        and np.exp(-np.abs(x)).tolist() == [math.exp(-abs(v)) for v in x.tolist()]
-    )
-
 
 PACKAGED = ("reference", "pass_left", "long_wall", "over_the_top", "no_obstacle", "endurance")
 GENERATED = (
@@ -53,7 +40,6 @@ GENERATED = (
     (0, 8669),
     (11, 4085),
 )
-EXACT = numpy_agrees_with_libm()
 WORKERS = 2
 """The machines have 2 cores, shared."""
 
@@ -192,7 +178,13 @@ def test_the_batch_equals_the_scalar_law_tick_by_tick() -> None:
         log = RunLog.from_array(logs[(name, mode)])
         for column, values in trace.items():
             where = f"{name}/{mode.value}: {column}"
-            if EXACT:
+            if NUMPY_IS_LIBM:
                 np.testing.assert_array_equal(values, log[column], err_msg=where)
             else:
-                np.testing.assert_allclose(values, log[column], rtol=1e-9, atol=1e-9, err_msg=where)
+                np.testing.assert_allclose(
+                    values,
+                    log[column],
+                    rtol=NOT_LIBM_TOLERANCE,
+                    atol=NOT_LIBM_TOLERANCE,
+                    err_msg=where,
+                )
