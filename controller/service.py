@@ -17,8 +17,13 @@ ControllerAnswer frame carrying the request's ticket (accepted, or rejected with
 The task's obstacle is the plant's world too (:mod:`protocol.world`): the service numbers it,
 sends it to the plant over ISO-TP (WorldUpload) and again while the plant's PlantStatus shows
 another number (a restarted plant); a new obstacle is answered once the plant holds it (or after
-:data:`WORLD_WAIT`). A run starts only with a plant that is heard, ready (no e-stop, no fault)
-and holding the task's world: otherwise it is refused with the reason, and nothing moves.
+:data:`WORLD_WAIT`). A world not yet sent whose number the plant already reports takes the next
+number: that world is another service's (a restarted service numbers from 1 again), so the
+plant's number is only ever taken for ours once it came from us. A world whose obstacle holds
+the arm where it stands is never sent: its task is dropped (a restarted service's start-up task
+over an arm that the last one left elsewhere). A run starts only with a plant that is heard,
+ready (no e-stop, no fault) and holding the task's world: otherwise it is refused with the
+reason, and nothing moves.
 
 A run keeps every rule of the one-shot controller (holds on comms loss, latched fault after
 the comms-loss timeout) and, with ``--out``, writes its result and log when it ends.
@@ -227,8 +232,18 @@ class ServiceNode(ControllerNode):
         world = self.world
         if world is None:
             return
-        synced = self.plant.world == world.number
         heard = now - self.plant.heard <= PLANT_HEARD
+        unsent = self._world_sent == -float("inf")
+        if unsent and self.task is not None and self._holds_the_arm(self.task):
+            self.log.warning("task %s dropped: its obstacle holds the arm", self.task.name)
+            self.task = self.world = None
+            if self._task_answer is not None:  # accepted before the arm was heard
+                self._answer(Answered.SCENARIO, self._task_answer[0], Reason.INSIDE_OBSTACLE)
+                self._task_answer = None
+            return
+        if unsent and heard and self.plant.world == world.number:
+            world = self.world = replace(world, number=next_world(world.number))
+        synced = self.plant.world == world.number
         if not synced and heard and self.node_state in (NodeState.RUNNING, NodeState.HOLD):
             # A plant restarted during the run judges by its start-up world until it holds
             # the task's again: it would see collisions with an obstacle nobody avoids.
