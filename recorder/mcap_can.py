@@ -5,12 +5,16 @@ points for ``.mcap``, so ``python -m can.logger -f run.mcap`` and ``python -m ca
 run.mcap`` work, and so does conversion to and from ``.blf``, ``.asc``, ``.csv`` or ``.log``
 with python-can's own readers and writers.
 
-The layout, one idea: a frame is an MCAP message whose data is the frame's raw data bytes
-and whose log time is the bus timestamp in nanoseconds. Its channel says everything else
-about it: one channel per kind of frame, named after the DBC message where the ID is one of
-ours (``can/JointState1``), after the ID otherwise (``can/0x123``, ``can/0x1234567x`` for an
-extended ID), with the ID and the flags in the channel's metadata. The message encoding is
-``can-frame`` and there is no schema (the data is bytes). Chunks are zstd-compressed and
+The layout, one idea: a frame is an MCAP message whose log time is the bus timestamp in
+nanoseconds. Its channel says everything else about it: one channel per kind of frame of the
+DBC's (``can/JointState1``, ``can/ScenarioUpload/remote``), the ID and the flags in the
+channel's metadata, the message's data the frame's raw data bytes. Every other frame (an ID
+the DBC does not define, any extended ID, an error frame) goes to one channel, ``can/other``
+(its metadata says ``id_in_data``), its data preceded by 4 bytes big-endian of SocketCAN's
+``can_id``: the ID with ``CAN_EFF_FLAG`` (bit 31), ``CAN_RTR_FLAG`` (30) and ``CAN_ERR_FLAG``
+(29). A channel per foreign ID would let a flood of random extended IDs grow the writer's
+channels, and memory, without bound. The message encoding is ``can-frame`` and there is no
+schema (the data is bytes). Chunks are zstd-compressed and
 indexed, so a file cut short is readable up to its last complete chunk.
 """
 
@@ -67,9 +71,18 @@ class RecordingError(ScaraError):
     """A file that is not a readable MCAP recording (empty, truncated, another format)."""
 
 
+EXTENDED_FLAG = 0x8000_0000
+REMOTE_FLAG = 0x4000_0000
+ERROR_FLAG = 0x2000_0000
+"""SocketCAN's CAN_EFF_FLAG, CAN_RTR_FLAG and CAN_ERR_FLAG, in ``can/other``'s 4-byte ID."""
+CAN_ID = struct.Struct(">I")
+OTHER_TOPIC = TOPIC_PREFIX + "other"
+
+
 @dataclass(frozen=True, slots=True)
 class FrameKind:
-    """What a channel's frames share: everything about a frame but its time and data."""
+    """What a channel's frames share: everything about a frame but its time and data (and,
+    with ``id_in_data``, its ID and flags, which ``can/other`` carries in each message)."""
 
     arbitration_id: int
     is_extended_id: bool = False
@@ -78,31 +91,77 @@ class FrameKind:
     is_fd: bool = False
     bitrate_switch: bool = False
     channel: str = ""
+    id_in_data: bool = False
 
     @classmethod
     def of(cls, message: can.Message) -> FrameKind:
+        channel = "" if message.channel is None else str(message.channel)
+        ours = not (message.is_extended_id or message.is_error_frame or message.is_fd)
+        if ours and message.arbitration_id in DBC_NAMES:
+            return cls(
+                message.arbitration_id,
+                is_remote_frame=message.is_remote_frame,
+                channel=channel,
+            )
         return cls(
-            message.arbitration_id,
-            message.is_extended_id,
-            message.is_remote_frame,
-            message.is_error_frame,
-            message.is_fd,
-            message.bitrate_switch,
-            "" if message.channel is None else str(message.channel),
+            0,
+            is_fd=message.is_fd,
+            bitrate_switch=message.bitrate_switch,
+            channel=channel,
+            id_in_data=True,
         )
 
     @property
     def topic(self) -> str:
-        """``can/<DBC name>`` for our data frames, ``can/0x...`` for any other."""
-        if self.is_error_frame:
-            return f"{TOPIC_PREFIX}error"
-        name = None
-        if not (self.is_extended_id or self.is_remote_frame or self.is_fd):
-            name = DBC_NAMES.get(self.arbitration_id)
-        if name is None:
-            width = 8 if self.is_extended_id else 3
-            name = f"0x{self.arbitration_id:0{width}X}" + ("x" if self.is_extended_id else "")
-        return TOPIC_PREFIX + name + ("/remote" if self.is_remote_frame else "")
+        """``can/<DBC name>`` for our frames, ``can/other`` for any other."""
+        if self.id_in_data:
+            return OTHER_TOPIC
+        return (
+            TOPIC_PREFIX
+            + DBC_NAMES[self.arbitration_id]
+            + ("/remote" if self.is_remote_frame else "")
+        )
+
+    def data(self, message: can.Message) -> bytes:
+        """What a message of this channel carries of ``message``."""
+        if not self.id_in_data:
+            return bytes(message.data)
+        can_id = message.arbitration_id
+        can_id |= EXTENDED_FLAG if message.is_extended_id else 0
+        can_id |= REMOTE_FLAG if message.is_remote_frame else 0
+        can_id |= ERROR_FLAG if message.is_error_frame else 0
+        return CAN_ID.pack(can_id) + bytes(message.data)
+
+    def message(self, log_time: int, data: bytes) -> can.Message:
+        """The frame a message of this channel holds; :class:`RecordingError` if it is
+        shorter than ``can/other``'s ID."""
+        kind = self
+        if self.id_in_data:
+            if len(data) < CAN_ID.size:
+                raise RecordingError(f"a frame on {OTHER_TOPIC} has {len(data)} bytes, no ID")
+            (can_id,) = CAN_ID.unpack_from(data)
+            data = data[CAN_ID.size :]
+            kind = FrameKind(
+                can_id & 0x1FFF_FFFF,
+                bool(can_id & EXTENDED_FLAG),
+                bool(can_id & REMOTE_FLAG),
+                bool(can_id & ERROR_FLAG),
+                self.is_fd,
+                self.bitrate_switch,
+                self.channel,
+            )
+        return can.Message(
+            timestamp=log_time / 1e9,
+            arbitration_id=kind.arbitration_id,
+            is_extended_id=kind.is_extended_id,
+            is_remote_frame=kind.is_remote_frame,
+            is_error_frame=kind.is_error_frame,
+            is_fd=kind.is_fd,
+            bitrate_switch=kind.bitrate_switch,
+            channel=kind.channel or None,
+            dlc=len(data),
+            data=data,
+        )
 
     def metadata(self) -> dict[str, str]:
         return {
@@ -113,6 +172,7 @@ class FrameKind:
             "is_fd": str(self.is_fd).lower(),
             "bitrate_switch": str(self.bitrate_switch).lower(),
             "channel": self.channel,
+            "id_in_data": str(self.id_in_data).lower(),
         }
 
     @classmethod
@@ -126,6 +186,7 @@ class FrameKind:
                 metadata.get("is_fd") == "true",
                 metadata.get("bitrate_switch") == "true",
                 metadata.get("channel", ""),
+                metadata.get("id_in_data") == "true",
             )
         except (KeyError, ValueError) as error:
             raise RecordingError(f"a CAN channel's metadata is incomplete: {error}") from None
@@ -215,7 +276,7 @@ class FrameChannels:
             )
             self._ids[kind] = channel_id
         stamp = round(message.timestamp * 1e9)
-        self.writer.add_message(channel_id, stamp, bytes(message.data), stamp, self.written)
+        self.writer.add_message(channel_id, stamp, kind.data(message), stamp, self.written)
         self.written += 1
 
 
@@ -249,18 +310,7 @@ def frames(stream: IO[bytes]) -> Iterator[can.Message]:
             kind = kinds.get(channel.id)
             if kind is None:
                 kind = kinds[channel.id] = FrameKind.from_metadata(dict(channel.metadata))
-            yield can.Message(
-                timestamp=message.log_time / 1e9,
-                arbitration_id=kind.arbitration_id,
-                is_extended_id=kind.is_extended_id,
-                is_remote_frame=kind.is_remote_frame,
-                is_error_frame=kind.is_error_frame,
-                is_fd=kind.is_fd,
-                bitrate_switch=kind.bitrate_switch,
-                channel=kind.channel or None,
-                dlc=len(message.data),
-                data=message.data,
-            )
+            yield kind.message(message.log_time, message.data)
     except READ_ERRORS as error:
         raise RecordingError(
             f"not a readable MCAP recording ({error}); if its writer was killed, "

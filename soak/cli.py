@@ -202,6 +202,7 @@ def soak(args: argparse.Namespace) -> Report:
         ended=ended,
         interrupted=interrupted,
     )
+    health.write_csv(out / "health.csv")
     (out / "report.json").write_text(json.dumps(report.as_json(), indent=1))
     (out / "report.txt").write_text(format_report(report) + "\n")
     return report

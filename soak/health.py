@@ -4,6 +4,7 @@ as growth within one start (a restart starts afresh)."""
 
 from __future__ import annotations
 
+import csv
 import os
 import threading
 import time
@@ -85,6 +86,15 @@ class Health:
 
     def stop(self) -> None:
         self._stop.set()
+
+    def write_csv(self, path: Path) -> None:
+        """Every sample (process, start, s since it started, resident bytes, file handles):
+        a leak rises to the end; a backlog worked off leaves a high-water mark and stays."""
+        with path.open("w", newline="") as stream:
+            rows = csv.writer(stream)
+            rows.writerow(["process", "start", "seconds", "rss_bytes", "open_files"])
+            for (name, start), samples in sorted(self.samples.items()):
+                rows.writerows([name, start, f"{s.at:.1f}", s.rss, s.fds] for s in samples)
 
     def growths(self) -> list[Growth]:
         """Every start observed past its warm-up, longest first."""

@@ -71,8 +71,13 @@ def kept_sequence(path: Path) -> tuple[list[int], int]:
             if channel.message_encoding != "can-frame":
                 continue
             frames += 1
-            if int(channel.metadata["arbitration_id"]) == SOURCE_ID:
-                numbers.append(SEQ.unpack_from(message.data)[0])
+            data = message.data
+            if channel.metadata["id_in_data"] == "true":  # can/other: SocketCAN's can_id first
+                frame_id, data = struct.unpack_from(">I", data)[0] & 0x1FFF_FFFF, data[4:]
+            else:
+                frame_id = int(channel.metadata["arbitration_id"])
+            if frame_id == SOURCE_ID:
+                numbers.append(SEQ.unpack_from(data)[0])
     return numbers, frames
 
 

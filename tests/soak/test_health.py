@@ -3,7 +3,9 @@ the growth of each start past its warm-up; and the watch's time back after a dis
 
 from __future__ import annotations
 
+import csv
 import os
+from pathlib import Path
 
 import pytest
 
@@ -29,6 +31,20 @@ def test_growth_counts_from_the_first_sample_past_the_warm_up() -> None:
     (growth,) = health.growths()
     assert (growth.process, growth.start, growth.seconds) == ("bridge", 0, 60)
     assert (growth.rss_growth, growth.fds_growth) == (20, 1)
+
+
+def test_every_sample_is_written_to_csv(tmp_path: Path) -> None:
+    health = Health(dict)
+    health.samples[("recorder", 1)] = [Sample(2.0, 100, 9), Sample(4.0, 120, 9)]
+    health.samples[("bridge", 0)] = [Sample(2.0, 80, 21)]
+    health.write_csv(tmp_path / "health.csv")
+    with (tmp_path / "health.csv").open() as stream:
+        rows = list(csv.DictReader(stream))
+    assert [(r["process"], r["start"], r["seconds"], r["rss_bytes"]) for r in rows] == [
+        ("bridge", "0", "2.0", "80"),
+        ("recorder", "1", "2.0", "100"),
+        ("recorder", "1", "4.0", "120"),
+    ]
 
 
 def test_a_system_is_back_once_it_stays_up() -> None:
