@@ -21,7 +21,7 @@ TASK_COMMANDS = ("waypoints", "obstacle", "mode")
 """Commands that change the task (sent over ISO-TP); the others are NodeCommands."""
 MAX_PAYLOAD_BYTES = 65536
 """The longest payload a command is read from: 32 waypoints, pretty-printed, take a few
-kilobytes, and a task travels in one ISO-TP transfer of at most 4095 bytes anyway. Anything
+kilobytes, and a task travels in one ISO-TP transfer of at most 4091 bytes anyway. Anything
 longer is refused unread (reading and checking megabytes would hold the bridge up)."""
 
 

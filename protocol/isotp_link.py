@@ -21,25 +21,38 @@ sees traffic that is not its own, and ISO-TP is one sender to one receiver:
 
 A listener (``listen=True``) receives the transfers between two others without sending
 anything.
+
+ISO-TP checks a transfer's frame order and length, not its bytes, and its frames carry no E2E
+header: every transfer ends with a CRC-32 of its payload (:func:`seal`), and a transfer whose
+CRC does not match (a bit flipped on the wire) is dropped and counted (:attr:`IsoTpLink.corrupt`),
+never handed on: a flipped digit would otherwise be a valid, different obstacle.
 """
 
 from __future__ import annotations
 
+import struct
+import zlib
 from collections import deque
 from collections.abc import Callable
 
 import can
 import isotp
 
-MAX_PAYLOAD = 4095
-"""Bytes one transfer carries on classic CAN (12-bit length)."""
+from protocol.errors import DecodeError
+
+CRC = struct.Struct(">I")
+"""The CRC-32 (zlib's, ISO-HDLC) ending every transfer, big-endian."""
+MAX_TRANSFER = 4095
+"""Bytes one ISO-TP transfer carries on classic CAN (12-bit length)."""
+MAX_PAYLOAD = MAX_TRANSFER - CRC.size
+"""Bytes of a payload one transfer carries, its CRC after it."""
 PARAMS = {
     "stmin": 0,  # the receiver takes frames as fast as they come
     "blocksize": 0,  # one flow control per transfer
     "tx_padding": 0xCC,  # full 8-byte frames, as most ECUs expect
     "rx_flowcontrol_timeout": 1000,
     "rx_consecutive_frame_timeout": 1000,
-    "max_frame_size": MAX_PAYLOAD,
+    "max_frame_size": MAX_TRANSFER,
 }
 SINGLE, FIRST, CONSECUTIVE, FLOW_CONTROL = range(4)
 """The frame types, the high nibble of the first byte (normal addressing)."""
@@ -69,6 +82,8 @@ class IsoTpLink:
         """Flow controls dropped: they came while this end was sending nothing."""
         self.overheard_errors = 0
         """Broken transfers this end only listened to (another operator's)."""
+        self.corrupt = 0
+        """Transfers of ours that came whole but failed their CRC: dropped."""
         self._on_error = on_error
         address = isotp.Address(isotp.AddressingMode.Normal_11bits, txid=txid, rxid=rxid)
         self._own: deque[isotp.CanMessage] = deque()
@@ -104,8 +119,8 @@ class IsoTpLink:
         )
 
     def send(self, payload: bytes) -> None:
-        """Start sending ``payload`` (frames go out as :meth:`poll` runs)."""
-        self._stack.send(payload)
+        """Start sending ``payload`` and its CRC (frames go out as :meth:`poll` runs)."""
+        self._stack.send(seal(payload))
 
     def poll(self) -> list[bytes]:
         """Run the state machines over what was fed, frame by frame (where a frame goes
@@ -123,9 +138,17 @@ class IsoTpLink:
                 continue
             stack.process(rx_timeout=0.0)  # timers, and our own frames to send
             while stack.available():
-                payload = stack.recv()
+                transfer = stack.recv()
+                if transfer is None:
+                    continue
+                payload = unseal(bytes(transfer))
                 if payload is not None:
-                    received.append(bytes(payload))
+                    received.append(payload)
+                elif stack is self._stack:
+                    self.corrupt += 1
+                    self._error(DecodeError(self.rxid, "the transfer failed its CRC-32"))
+                else:
+                    self._overheard_error(DecodeError(self.rxid, "the transfer failed its CRC-32"))
         return received
 
     def _route(self, message: isotp.CanMessage) -> isotp.TransportLayerLogic | None:
@@ -164,6 +187,19 @@ class IsoTpLink:
     def _overheard_error(self, error: Exception) -> None:
         """Another end's transfer broke: nothing of ours was lost."""
         self.overheard_errors += 1
+
+
+def seal(payload: bytes) -> bytes:
+    """``payload`` as one transfer carries it: its CRC-32 after it."""
+    return payload + CRC.pack(zlib.crc32(payload))
+
+
+def unseal(transfer: bytes) -> bytes | None:
+    """The payload of a transfer :func:`seal` made; None if its CRC does not match."""
+    payload, crc = transfer[: -CRC.size], transfer[-CRC.size :]
+    if len(transfer) < CRC.size or CRC.pack(zlib.crc32(payload)) != crc:
+        return None
+    return payload
 
 
 def _next(frames: deque[isotp.CanMessage]) -> isotp.CanMessage | None:

@@ -30,6 +30,7 @@ from protocol.errors import (
     WaypointInObstacleError,
 )
 from protocol.geometry import EllipticCylinder
+from protocol.isotp_link import MAX_PAYLOAD
 from protocol.kinematics import Elbow, inverse
 from protocol.messages import COMMAND, STATE
 from protocol.validation import check, read_json
@@ -204,8 +205,8 @@ def scenario_document(scenario: Scenario) -> dict[str, Any]:
     }
 
 
-MAX_TASK_BYTES = 4095
-"""The most one ISO-TP transfer on classic CAN carries."""
+MAX_TASK_BYTES = MAX_PAYLOAD
+"""The most one ISO-TP transfer on classic CAN carries (its CRC apart)."""
 
 
 TICKET_MAX = 255

@@ -29,7 +29,7 @@ from protocol.config import RobotConfig
 from protocol.e2e import E2EMonitor
 from protocol.errors import ConfigError, DecodeError
 from protocol.geometry import EllipticCylinder
-from protocol.isotp_link import CONSECUTIVE, FIRST, SINGLE
+from protocol.isotp_link import CONSECUTIVE, FIRST, SINGLE, unseal
 from protocol.kinematics import forward
 from protocol.messages import (
     COMMAND,
@@ -274,7 +274,10 @@ class Worlds:
                 self._complete(bytes(self._transfer[: self._length]))
                 self._length = 0
 
-    def _complete(self, payload: bytes) -> None:
+    def _complete(self, transfer: bytes) -> None:
+        payload = unseal(transfer)
+        if payload is None:
+            return  # failed its CRC: the plant drops it too
         try:
             world = read_world(payload)
         except ConfigError:

@@ -224,4 +224,4 @@ def test_a_task_with_a_name_too_long_to_send_back_is_refused_naming_it() -> None
     (``encode_task`` raised in its loop)."""
     with pytest.raises(ConfigError) as raised:
         parse_task({"name": "\U0001f916" * 400, "waypoints": arc(4)}, BASE)
-    assert raised.value.field == "name" and "4095" in str(raised.value)
+    assert raised.value.field == "name" and str(MAX_TASK_BYTES) in str(raised.value)

@@ -36,7 +36,7 @@ from controller.planner import check_plan
 from controller.service import ServiceNode
 from protocol.codec import WIRE
 from protocol.errors import ConfigError
-from protocol.isotp_link import MAX_PAYLOAD, IsoTpLink
+from protocol.isotp_link import MAX_PAYLOAD, IsoTpLink, seal
 from protocol.messages import (
     COMMAND,
     CONTROLLER_ANSWER,
@@ -92,7 +92,8 @@ def task_payloads(draw: st.DrawFn) -> bytes:
 
 
 def segments(payload: bytes) -> list[bytes]:
-    """ISO-TP frames (normal addressing, classic CAN, 0xCC padding) carrying ``payload``."""
+    """ISO-TP frames (normal addressing, classic CAN, 0xCC padding) carrying ``payload`` (a
+    transfer: :func:`seal` it for its CRC)."""
     if len(payload) <= 7:
         return [bytes([len(payload)]) + payload + b"\xcc" * (7 - len(payload))]
     if len(payload) <= 4095:
@@ -123,7 +124,7 @@ def raw_transfers(draw: st.DrawFn) -> list[Raw]:
     payload = draw(task_payloads(), label="payload")
     if draw(st.integers(0, 9), label="oversize") == 0:
         payload = payload * (MAX_PAYLOAD // max(len(payload), 1) + 1)
-    frames = [Raw(data) for data in segments(payload)]
+    frames = [Raw(data) for data in segments(seal(payload))]
     for _ in range(draw(st.integers(0, 3), label="breaks")):
         kind = draw(
             st.sampled_from(
@@ -149,7 +150,7 @@ def raw_transfers(draw: st.DrawFn) -> list[Raw]:
                 head = bytes([0x10, 0x00]) + claimed.to_bytes(4, "big")
             frames[0] = Raw(head + frames[0].data[len(head) :], frames[0].flags)
         elif kind == "interleave":
-            other = segments(draw(task_payloads(), label="other payload"))
+            other = segments(seal(draw(task_payloads(), label="other payload")))
             frames[at:at] = [Raw(data) for data in other[: draw(st.integers(1, len(other)))]]
         else:
             flag = draw(st.sampled_from(["extended", "remote", "error", "fd"]))
@@ -432,7 +433,7 @@ def test_frames_that_are_no_data_frames_of_scenario_upload_carry_no_task(
     they carry is no transfer, and gets no answer."""
     machine = ServiceUploads()
     try:
-        for data in segments(payload or b" "):
+        for data in segments(seal(payload or b" ")):
             machine.send_raw(Raw(data, frozenset({flag})))
         machine.tick(3)
         assert machine.delivered == [] and machine.answers == []

@@ -150,3 +150,33 @@ def test_the_controllers_link_answers_every_transfer(make_bus: Callable[..., Bus
     bus.run_until(lambda: len(bus.controller.received) == 2, "the second upload")
     assert bus.controller.received == [TASK, TASK]
     assert bus.controller.flow_controls() == 2
+
+
+def test_a_transfer_with_a_bit_flipped_on_the_wire_is_dropped_and_counted(
+    make_bus: Callable[..., Bus],
+) -> None:
+    """ISO-TP checks frame order and length, not bytes: without the CRC a digit flipped on
+    the wire (``"x":0.2`` read as ``"x":0.3``) was a valid, different task."""
+    bus = make_bus(each=[{}])
+    (operator,) = bus.operators
+    flipped = [False]
+
+    def flip_one_digit(message: can.Message) -> None:
+        data = bytearray(message.data)
+        if not flipped[0] and data[0] >> 4 == 2 and any(0x30 <= b <= 0x38 for b in data[1:]):
+            at = next(i for i, b in enumerate(data) if i and 0x30 <= b <= 0x38)
+            data[at] ^= 0x01  # another digit, still JSON
+            flipped[0] = True
+        operator._send(
+            can.Message(arbitration_id=message.arbitration_id, data=data, is_extended_id=False)
+        )
+
+    operator.link._send_frame = flip_one_digit  # type: ignore[method-assign]
+    operator.link.send(TASK)
+    bus.run_until(lambda: bool(bus.controller.errors), "the flipped transfer to be refused")
+    assert bus.controller.received == [] and bus.controller.link.corrupt == 1
+    assert "CRC" in str(bus.controller.errors[0])
+
+    operator.link.send(TASK)  # the next one, whole, goes through
+    bus.run_until(lambda: bool(bus.controller.received), "the whole transfer")
+    assert bus.controller.received == [TASK] and bus.controller.link.corrupt == 1

@@ -9,6 +9,7 @@ from pathlib import Path
 import can
 
 from protocol.config import RobotConfig
+from protocol.isotp_link import seal
 from protocol.kinematics import inverse
 from protocol.messages import (
     COMMAND,
@@ -154,10 +155,12 @@ def test_a_collision_the_plant_reports_is_caught_once() -> None:
     assert len(collisions(bus.seen())) == 1
 
 
-def world_frames(bus: Bus, world: World) -> None:
+def world_frames(bus: Bus, world: World, flip: int | None = None) -> None:
     """An ISO-TP transfer of ``world`` on WorldUpload, by hand: first and consecutive
-    frames (the plant's flow control left out)."""
-    payload = world.encode()
+    frames (the plant's flow control left out); with ``flip``, that bit of it flipped."""
+    payload = bytearray(seal(world.encode()))
+    if flip is not None:
+        payload[flip // 8] ^= 1 << flip % 8
     bus.send(
         WORLD_UPLOAD.frame_id, bytes([0x10 | len(payload) >> 8, len(payload) & 0xFF]) + payload[:6]
     )
@@ -181,6 +184,14 @@ def test_the_tool_inside_the_inflated_obstacle_of_the_plants_world_is_caught() -
     bus.status("plant", "running", World=8)  # a world whose upload is not recorded
     bus.state(0, INSIDE)
     assert inside_obstacle(bus.seen(), Worlds())[1] == 1
+
+
+def test_a_world_that_failed_its_crc_is_not_taken_for_the_plants() -> None:
+    bus = Bus()
+    world_frames(bus, World(7, REFERENCE.obstacle, REFERENCE.tool_radius), flip=8 * 12)
+    worlds = Worlds()
+    inside_obstacle(bus.seen(), worlds)
+    assert worlds.obstacles == {}
 
 
 def test_an_obstacle_removed_leaves_the_way_through_free() -> None:
