@@ -14,8 +14,10 @@ the DBC does not define, any extended ID, an error frame) goes to one channel, `
 ``can_id``: the ID with ``CAN_EFF_FLAG`` (bit 31), ``CAN_RTR_FLAG`` (30) and ``CAN_ERR_FLAG``
 (29). A channel per foreign ID would let a flood of random extended IDs grow the writer's
 channels, and memory, without bound. The message encoding is ``can-frame`` and there is no
-schema (the data is bytes). Chunks are zstd-compressed and
-indexed, so a file cut short is readable up to its last complete chunk.
+schema (the data is bytes). Chunks are zstd-compressed and indexed (a chunk index, no
+message indexes: they took half a file, and the writer kept each chunk's offsets in memory
+until the end, 1.35 MB per 1,000 chunks, 10 chunks a second), so a file cut short is readable
+up to its last complete chunk.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import zstandard
 from can.io.generic import BinaryIOMessageReader, BinaryIOMessageWriter
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from protocol.codec import WIRE
 from protocol.errors import ScaraError
@@ -194,7 +196,12 @@ class FrameKind:
 
 def open_writer(stream: IO[bytes]) -> Writer:
     """An MCAP writer with zstd chunks of :data:`CHUNK_SIZE`, started."""
-    writer = Writer(stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+    writer = Writer(
+        stream,
+        chunk_size=CHUNK_SIZE,
+        compression=CompressionType.ZSTD,
+        index_types=IndexType.ALL & ~IndexType.MESSAGE,
+    )
     writer.start(profile=PROFILE, library="scara-fuzzy recorder")
     return writer
 
