@@ -4,6 +4,7 @@
 
 const PLOT_SECONDS = 10; // k_T and k_C over this many seconds
 const EVENTS_SHOWN = 8;
+const PLOT_PERIOD = 100; // ms between two redraws of the plot (the weights come at 10 Hz)
 const $ = (id) => document.getElementById(id);
 
 const page = {
@@ -19,6 +20,8 @@ const page = {
   taskChanged: true, // the draft task to draw again in 3D
   stats: { messages: 0, frames: 0 }, // read by the tests: updates received, frames drawn
   commandId: 0,
+  plotted: 0, // when the plot was last drawn (ms)
+  plotStale: true,
 };
 window.scara = page;
 
@@ -101,16 +104,16 @@ function onState(message) {
   if (message.latest.scenario && !page.edited) takeTask(message.latest.scenario);
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
   page.changed = true;
+  page.plotStale = true;
 }
 
 // --- drawing, once per browser frame when something changed ---
 
-function frame() {
+function frame(now) {
   requestAnimationFrame(frame);
   if (page.changed) {
     page.changed = false;
     drawNumbers();
-    drawPlot();
     const joints = page.latest.joints;
     const topView = page.topView;
     topView.joints = joints ? joints.position : null;
@@ -125,6 +128,11 @@ function frame() {
       page.taskChanged = false;
     }
     page.stats.frames += 1;
+  }
+  if (page.plotStale && now - page.plotted >= PLOT_PERIOD) {
+    page.plotStale = false;
+    page.plotted = now;
+    drawPlot();
   }
   if (page.view3d) page.view3d.render();
 }
@@ -154,12 +162,14 @@ function drawNumbers() {
       $(`${node}-faults`).className = seen.faults.length ? "fault" : "";
     }
     const controller = status.controller;
-    $("mode").textContent = controller.mode;
     $("progress").value = controller.progress;
     $("progress-text").textContent =
       `${controller.progress} %, waypoints ${controller.waypoints_reached}, holds ${controller.holds}`;
   }
   $("task-name").textContent = scenario ? scenario.name : "no task";
+  // the task's mode is the one set; the controller's status tells it from its next run on
+  const mode = scenario ? scenario.mode : status && status.controller.mode;
+  $("mode").textContent = mode || "–";
   const list = $("events");
   list.innerHTML = "";
   for (const event of page.events) {
