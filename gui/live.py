@@ -4,7 +4,8 @@ One client session (the user's credentials, no scouting, one explicit router end
 ``bridge/session.py``) subscribes key by key to ``scara/*/<key>``, as the secure router's
 rules name them, so every robot on the network is heard; the bridges' liveliness tokens
 (``scara/*/alive/bridge``) say which robots are there now. Each state key's queryable is
-asked once, so the pages show every robot at once, before its next sample.
+asked at start and again whenever a robot's bridge appears, so the pages show every robot at
+once, before its next sample (the task and the status are published only when they change).
 """
 
 from __future__ import annotations
@@ -49,12 +50,7 @@ class Fleet:
                 "scara/*/alive/bridge", self._on_liveliness, history=True
             )
         )
-        for name in STATE_KEYS:
-            if name == "events":
-                continue  # past events are not kept: the queryable has none
-            for reply in session.get(f"scara/*/{name}", timeout=QUERY_TIMEOUT):
-                if reply.ok is not None:
-                    self._handler(name)(reply.ok)
+        self._look_at("*")
 
     def robot(self, name: str) -> RobotState:
         """The state of robot ``name`` (an empty one until it is heard)."""
@@ -80,11 +76,25 @@ class Fleet:
 
         return on_sample
 
+    def _look_at(self, robot: str) -> None:
+        """Ask the state keys of ``robot`` (``*``: every robot) for their present values:
+        the bridge publishes some only when they change (``scenario``, ``status``), and a
+        page must not wait for the next change to learn them."""
+        for name in STATE_KEYS:
+            if name == "events":
+                continue  # past events are not kept: the queryable has none
+            for reply in self.session.get(f"scara/{robot}/{name}", timeout=QUERY_TIMEOUT):
+                if reply.ok is not None:
+                    self._handler(name)(reply.ok)
+
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
         robot = robot_of(str(sample.key_expr))
         self.robot(robot)
+        alive = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
-            self.online[robot] = sample.kind == zenoh.SampleKind.PUT
+            self.online[robot] = alive
+        if alive:  # a bridge (re)started after this server: what it holds now, off Zenoh's thread
+            threading.Thread(target=self._look_at, args=(robot,), daemon=True).start()
 
     def close(self) -> None:
         for entity in self._entities:

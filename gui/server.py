@@ -39,8 +39,14 @@ from protocol.config import RobotConfig
 log = logging.getLogger("scara.gui")
 
 STATIC = Path(__file__).resolve().parent / "static"
-SEND_RATE = 50.0
-"""Updates per second to each page at most (the bridge publishes the joints at 100 Hz)."""
+SEND_RATE = 40.0
+"""Updates per second to each page at most (the bridge publishes the joints at 100 Hz). Every
+update is a frame the browser draws: without a GPU (software WebGL and compositing), two pages
+of a recording playing drew 47 frames a second each at 50 updates and took 1.3 cores of a
+2-core machine; at 40 updates, 38 frames and 1.1 cores. Still above the 30 frames a second a
+page must show (``benchmarks/bench_gui.py``)."""
+POLL = 0.002
+"""s between two looks for a change, once a page is up to date."""
 MAX_MESSAGE = 256 * 1024
 """Bytes a page's message may take (the bridge refuses a command over 64 KiB)."""
 
@@ -122,11 +128,15 @@ class PageSocket:
         period = 1.0 / SEND_RATE
         listing: list[dict[str, Any]] = []
         last = time.monotonic()
+        sent = last - period
         while True:
+            # a change waits for the next send (at SEND_RATE at most), not for a fixed beat:
+            # the first move after a rest goes out within POLL, not within a whole period
+            await asyncio.sleep(max(POLL, sent + period - time.monotonic()))
+            while not self._pending(listing):
+                await asyncio.sleep(POLL)
             now = time.monotonic()
-            await asyncio.sleep(max(0.0, last + period - now))
-            now, elapsed = time.monotonic(), time.monotonic() - last
-            last = now
+            elapsed, last, sent = now - last, now, now
             if self.gui.fleet is not None and (fleet := self.gui.fleet.listing()) != listing:
                 listing = fleet
                 await self.send({"type": "robots", "robots": listing})
@@ -139,6 +149,14 @@ class PageSocket:
             if update is not None:
                 clock = self.player.time if self.player is not None else time.time()
                 await self.send(update | {"type": "state", "robot": self.robot, "time": clock})
+
+    def _pending(self, listing: list[dict[str, Any]]) -> bool:
+        """Something to send: the robot's state or the fleet changed, or a recording plays."""
+        if self.player is not None and self.player.playing:
+            return True
+        if self.gui.fleet is not None and self.gui.fleet.listing() != listing:
+            return True
+        return self._state().changed_since(self.cursor)
 
     def _playback(self) -> dict[str, Any]:
         assert self.player is not None

@@ -127,7 +127,9 @@ class RobotState:
             if plan is not None:
                 self._plan = plan
             if name == "tcp":
-                self._path.append([payload["x"], payload["y"], payload["z"]])
+                point = [payload["x"], payload["y"], payload["z"]]
+                if not self._path.items or self._path.items[-1] != point:  # not at rest
+                    self._path.append(point)
             elif name == "coordination":
                 self._trace.append([payload["t"], payload["k_t"], payload["k_c"]])
                 while self._trace.items and self._trace.items[0][0] < payload["t"] - TRACE_SECONDS:
@@ -138,13 +140,19 @@ class RobotState:
                     self._path.clear()
                     self._epoch += 1
 
+    def changed_since(self, cursor: Cursor | None) -> bool:
+        """Whether :meth:`since` has anything for a page at ``cursor`` (cheap: no copy)."""
+        with self._lock:
+            return cursor is None or cursor != self._cursor()
+
+    def _cursor(self) -> Cursor:
+        return Cursor(self._epoch, self._path.end, self._trace.end, self._events.end, self._version)
+
     def since(self, cursor: Cursor | None) -> tuple[dict[str, Any] | None, Cursor]:
         """What is new for a page at ``cursor`` (``full`` the whole state when it has none,
         or missed part of the path), None if nothing is; and its new cursor."""
         with self._lock:
-            now = Cursor(
-                self._epoch, self._path.end, self._trace.end, self._events.end, self._version
-            )
+            now = self._cursor()
             if cursor is not None and cursor == now:
                 return None, now
             full = (

@@ -441,3 +441,12 @@ def open_client(port: int, user: str | None = None, password: str | None = None)
         config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
         config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
     return zenoh.open(config)
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+"""Debian's Chromium, which Playwright drives headless (``tools/browser-setup``): Playwright's
+own browser download is not reachable from these machines."""
+BROWSER_ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader"]
+"""No sandbox as root in a container; SwiftShader: WebGL in software, there is no GPU."""
+VIEWPORT = {"width": 1280, "height": 760}
+"""The pages' size in the browser tests and the GUI benchmark."""

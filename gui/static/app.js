@@ -18,6 +18,7 @@ const page = {
   edited: false, // the draft differs from the robot's task: a new task does not replace it
   changed: true, // something to draw
   taskChanged: true, // the draft task to draw again in 3D
+  planChanged: true, pathRestarted: true, eventsChanged: true, // to draw again, not extend
   stats: { messages: 0, frames: 0 }, // read by the tests: updates received, frames drawn
   commandId: 0,
   plotted: 0, // when the plot was last drawn (ms)
@@ -90,21 +91,40 @@ function onRobots(robots) {
 
 function onState(message) {
   if (message.robot !== page.robot) return; // sent before a switch was seen
+  // at rest the bridge still sends the same joints 100 times a second: nothing to draw again
+  const visible = message.full || message.path.length || message.events.length || message.plan
+    || Object.entries(message.latest).some(([name, value]) => !sameShown(page.latest[name], value));
   if (message.full) {
     Object.assign(page, { latest: {}, path: [], trace: [], events: [] });
+    page.pathRestarted = page.eventsChanged = true;
   }
   Object.assign(page.latest, message.latest);
   page.path.push(...message.path);
+  if (page.path.length > PATH_CAPACITY) { // as the server keeps it: the newest points
+    page.path.splice(0, page.path.length - PATH_CAPACITY);
+    page.pathRestarted = true;
+  }
   page.trace.push(...message.trace);
   page.trace = page.trace.filter(([t]) => t >= message.time - PLOT_SECONDS);
-  page.events.push(...message.events);
-  page.events = page.events.slice(-EVENTS_SHOWN);
-  if (message.plan) page.plan = message.plan;
+  if (message.events.length) {
+    page.events.push(...message.events);
+    page.events = page.events.slice(-EVENTS_SHOWN);
+    page.eventsChanged = true;
+  }
+  if (message.plan) {
+    page.plan = message.plan;
+    page.planChanged = true;
+  }
   page.time = message.time;
   if (message.latest.scenario && !page.edited) takeTask(message.latest.scenario);
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
-  page.changed = true;
-  page.plotStale = true;
+  if (visible) page.changed = true;
+  if (message.full || message.trace.length) page.plotStale = true;
+}
+
+// Two samples of a state key the page shows alike (all but their time stamp).
+function sameShown(before, after) {
+  return before !== undefined && JSON.stringify({ ...before, t: 0 }) === JSON.stringify({ ...after, t: 0 });
 }
 
 // --- drawing, once per browser frame when something changed ---
@@ -122,11 +142,11 @@ function frame(now) {
     topView.draw();
     if (page.view3d) {
       if (joints) page.view3d.setJoints(joints.position);
-      page.view3d.setLine(page.view3d.travelled, page.path);
-      page.view3d.setLine(page.view3d.plan, page.plan);
+      page.view3d.extendLine(page.view3d.travelled, page.path, page.pathRestarted);
+      if (page.planChanged) page.view3d.setLine(page.view3d.plan, page.plan);
       if (page.taskChanged) page.view3d.setTask(page.draft);
-      page.taskChanged = false;
     }
+    page.taskChanged = page.planChanged = page.pathRestarted = false;
     page.stats.frames += 1;
   }
   if (page.plotStale && now - page.plotted >= PLOT_PERIOD) {
@@ -170,6 +190,8 @@ function drawNumbers() {
   // the task's mode is the one set; the controller's status tells it from its next run on
   const mode = scenario ? scenario.mode : status && status.controller.mode;
   $("mode").textContent = mode || "–";
+  if (!page.eventsChanged) return;
+  page.eventsChanged = false;
   const list = $("events");
   list.innerHTML = "";
   for (const event of page.events) {

@@ -19,8 +19,11 @@ class TopView {
     this.plan = [];
     this.span = geometry.r_max * 1.1; // metres from the centre to the edge
     const ratio = window.devicePixelRatio || 1;
-    canvas.width = canvas.clientWidth * ratio;
-    canvas.height = canvas.clientHeight * ratio;
+    // its size in CSS pixels, read once: read while drawing, after the numbers were written,
+    // it forced the browser to lay the page out again every frame
+    this.size = canvas.clientWidth;
+    canvas.width = this.size * ratio;
+    canvas.height = this.size * ratio;
     this.context.scale(ratio, ratio);
     this.dragging = null;
     canvas.addEventListener("mousedown", (e) => this.press(e));
@@ -32,7 +35,7 @@ class TopView {
 
   // --- coordinates: CSS pixels of the canvas <-> metres ---
   toScreen(x, y) {
-    const size = this.canvas.clientWidth / 2;
+    const size = this.size / 2;
     return [size + (x / this.span) * size, size - (y / this.span) * size];
   }
 
@@ -126,7 +129,7 @@ class TopView {
   // --- drawing ---
   draw() {
     const c = this.context, g = this.geometry;
-    const size = this.canvas.clientWidth, scale = size / 2 / this.span;
+    const size = this.size, scale = size / 2 / this.span;
     c.clearRect(0, 0, size, size);
     const [cx, cy] = this.toScreen(0, 0);
     c.fillStyle = "#e8f5e9";

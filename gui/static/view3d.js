@@ -2,12 +2,13 @@
 // obstacle (solid) and its inflated hull (wire), the planned path and the path travelled.
 "use strict";
 
-const PATH_CAPACITY = 20000; // points of the path travelled, as the server keeps
+const PATH_CAPACITY = 20000; // points of the path travelled, as the server keeps (gui/state.py)
 
 class Arm3D {
   constructor(container, geometry) {
     this.geometry = geometry;
-    this.renderer = new THREE.WebGLRenderer({ antialias: true });
+    // no antialiasing: without a GPU (software WebGL) it multiplies the cost of every frame
+    this.renderer = new THREE.WebGLRenderer({ antialias: false });
     this.renderer.setPixelRatio(window.devicePixelRatio);
     this.renderer.setClearColor(0xf7f9fa);
     container.appendChild(this.renderer.domElement);
@@ -69,6 +70,7 @@ class Arm3D {
     const geometry = new THREE.BufferGeometry();
     geometry.setAttribute("position", new THREE.BufferAttribute(new Float32Array(capacity * 3), 3));
     geometry.setDrawRange(0, 0);
+    geometry.getAttribute("position").setUsage(THREE.DynamicDrawUsage);
     const line = new THREE.Line(geometry, new THREE.LineBasicMaterial({ color }));
     line.frustumCulled = false;
     this.scene.add(line);
@@ -81,10 +83,29 @@ class Arm3D {
       attribute = new THREE.BufferAttribute(new Float32Array(points.length * 3), 3);
       line.geometry.setAttribute("position", attribute);
     }
-    const start = Math.max(0, points.length - attribute.count);
-    for (let i = start; i < points.length; i++) attribute.setXYZ(i - start, ...points[i]);
+    points.forEach((point, i) => attribute.setXYZ(i, ...point));
     attribute.needsUpdate = true;
-    line.geometry.setDrawRange(0, points.length - start);
+    line.geometry.setDrawRange(0, points.length);
+    line.userData.written = points.length;
+    this.dirty = true;
+  }
+
+  // The path travelled grows at its end: only its new points are written and sent to WebGL
+  // (the whole buffer, every frame, cost more than all the rest of the page's drawing).
+  extendLine(line, points, restart) {
+    const written = restart || points.length < (line.userData.written || 0) ? 0 : line.userData.written || 0;
+    if (written === points.length) {
+      if (restart) this.setLine(line, points);
+      return;
+    }
+    if (points.length > line.geometry.getAttribute("position").count) return this.setLine(line, points);
+    const attribute = line.geometry.getAttribute("position");
+    for (let i = written; i < points.length; i++) attribute.setXYZ(i, ...points[i]);
+    attribute.updateRange.offset = written * 3;
+    attribute.updateRange.count = (points.length - written) * 3;
+    attribute.needsUpdate = true;
+    line.geometry.setDrawRange(0, points.length);
+    line.userData.written = points.length;
     this.dirty = true;
   }
 

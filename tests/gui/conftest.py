@@ -19,15 +19,11 @@ from typing import Any
 
 import pytest
 import zenoh
-from support import ROOT, Processes, free_port, wait_until
+from support import BROWSER_ARGS, CHROMIUM, ROOT, VIEWPORT, Processes, free_port, wait_until
 
 sys.path.insert(0, str(ROOT / "tests" / "bridge"))  # the bridge tests' robot as a service
 from robot_stack import COMMS, PASSWORDS, SECURE_CONFIG, START, Stack, start_router
 
-CHROMIUM = Path("/usr/bin/chromium")
-BROWSER_ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader"]
-"""No sandbox as root in a container; SwiftShader: WebGL in software, there is no GPU."""
-VIEWPORT = {"width": 1280, "height": 760}
 TASK = Path(__file__).resolve().parent / "patient_reference.toml"
 """The robot's task at start: the reference with a long timeout (see the file)."""
 

@@ -46,6 +46,23 @@ def test_a_new_run_or_a_page_that_missed_part_of_the_path_gets_it_whole() -> Non
     assert update is not None and update["full"] and len(update["path"]) == PATH_POINTS
 
 
+def test_an_arm_at_rest_neither_grows_the_path_nor_hides_its_joints() -> None:
+    """The bridge sends the same tool position 100 times a second at rest: the path keeps one
+    point (200 s at rest would have pushed the run's whole path out), and the joints still
+    go out as sent."""
+    state = RobotState(BASE)
+    state.on_sample("tcp", tcp(0.0))
+    _, cursor = state.since(None)
+    for t in (0.01, 0.02, 0.03):
+        state.on_sample("tcp", tcp(0.0) | {"t": t})
+        state.on_sample("joints", {"t": t, "position": [0.1, 0.2, 0.0]})
+    assert state.changed_since(cursor)
+    update, cursor = state.since(cursor)
+    assert update is not None and update["path"] == []
+    assert update["latest"]["joints"]["t"] == 0.03 and update["latest"]["tcp"]["t"] == 0.03
+    assert not state.changed_since(cursor)
+
+
 def test_a_task_comes_with_its_planned_path() -> None:
     state = RobotState(BASE)
     task = {"name": "t", "mode": "fuzzy", "elbow": "down", "settle_time": 1.0}
