@@ -4,6 +4,7 @@ own refusal of a read-only page's command: no browser, no process."""
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -80,6 +81,23 @@ def test_the_server_listens_on_loopback_unless_told(
 ) -> None:
     assert main(["--host", host]) == 2
     assert "--host" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("content", "said"),
+    [
+        (b"", "empty"),
+        (b"\x89MCAP0\r\n" + bytes(40), "scara-record recover"),  # a writer killed early
+    ],
+)
+def test_a_file_that_is_not_a_whole_recording_is_refused_saying_why(
+    content: bytes, said: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = tmp_path / "run.mcap"
+    recording.write_bytes(content)
+    assert main([str(recording)]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("scara-gui: ") and str(recording) in error and said in error, error
 
 
 class Sent:
