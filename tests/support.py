@@ -12,7 +12,8 @@
 - :data:`NUMPY_IS_LIBM`: whether numpy's transcendental functions give libm's bits here, and
   :data:`NOT_LIBM_TOLERANCE` where they do not.
 - :func:`read_foxglove`: a Foxglove protobuf message read with the schema that came with it,
-  checked to read the same with Foxglove's published schemas (``foxglove-schemas-protobuf``).
+  checked to read the same with Foxglove's published schemas (``foxglove-schemas-protobuf``);
+  :func:`quill_in_world`: where its transforms put the arm's quill.
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -42,6 +43,7 @@ import pytest
 import zenoh
 from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
 
+from bridge.scene import QUILL, WORLD
 from controller.node import (
     GIVE_UP_VARIABLE,
     LOCKSTEP_GIVE_UP,
@@ -460,3 +462,18 @@ def read_foxglove(schema_name: str, schema_data: bytes, data: bytes) -> Any:
     published = getattr(module, type_name).FromString(data)
     assert json_format.MessageToDict(own.FromString(data)) == json_format.MessageToDict(published)
     return published
+
+
+def quill_in_world(transforms: Any) -> tuple[float, float, float]:
+    """Where a decoded ``foxglove.FrameTransforms`` puts the scene's quill frame in its world
+    frame, composed along the chain (rotations about z only, as the arm's are)."""
+    by_child = {t.child_frame_id: t for t in transforms.transforms}
+    x = y = z = 0.0
+    frame = QUILL
+    while frame != WORLD:
+        t = by_child[frame]
+        yaw = 2.0 * math.atan2(t.rotation.z, t.rotation.w)
+        x, y = math.cos(yaw) * x - math.sin(yaw) * y, math.sin(yaw) * x + math.cos(yaw) * y
+        x, y, z = x + t.translation.x, y + t.translation.y, z + t.translation.z
+        frame = t.parent_frame_id
+    return x, y, z

@@ -21,9 +21,18 @@ import can
 import jsonschema
 import pytest
 from mcap.reader import make_reader
-from support import ROOT, SLOWDOWN, Observer, Processes, Transport, read_foxglove, wait_until
+from support import (
+    ROOT,
+    SLOWDOWN,
+    Observer,
+    Processes,
+    Transport,
+    quill_in_world,
+    read_foxglove,
+    wait_until,
+)
 
-from bridge.scene import QUILL, SCENE_TOPIC, TF_PERIOD, TF_TOPIC, WORLD
+from bridge.scene import SCENE_TOPIC, TF_PERIOD, TF_TOPIC
 from bridge.session import ZenohEndpoint
 from protocol.keys import DEFAULT_ROBOT, schema
 from protocol.kinematics import forward
@@ -81,20 +90,6 @@ def mcap_contents(
         attachments = {a.name: a.data for a in reader.iter_attachments()}
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     return frames, dict(decoded), dict(foxglove), (summary, attachments, metadata)
-
-
-def quill_in_world(transforms: Any) -> tuple[float, float, float]:
-    """Where a ``foxglove.FrameTransforms`` puts the quill, composed from world out."""
-    by_child = {t.child_frame_id: t for t in transforms.transforms}
-    x = y = z = 0.0
-    frame = QUILL
-    while frame != WORLD:
-        t = by_child[frame]
-        yaw = 2.0 * math.atan2(t.rotation.z, t.rotation.w)
-        x, y = math.cos(yaw) * x - math.sin(yaw) * y, math.sin(yaw) * x + math.cos(yaw) * y
-        x, y, z = x + t.translation.x, y + t.translation.y, z + t.translation.z
-        frame = t.parent_frame_id
-    return x, y, z
 
 
 def check_scene(foxglove: dict[str, list[tuple[int, Any]]], joints: list[dict[str, Any]]) -> None:
