@@ -17,13 +17,15 @@ from typing import Any
 import jsonschema
 import pytest
 from robot_stack import REFERENCE, RUN_TIME, START, Stack, start_router
-from support import Processes, free_port, quill_in_world, read_foxglove, wait_until
+from support import ROOT, Processes, free_port, quill_in_world, read_foxglove, wait_until
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 from websockets.typing import Subprotocol
 
+from bridge.commands import TASK_COMMANDS, edit_task, parse_payload
 from bridge.node import build_parser, foxglove_from_args
-from bridge.scene import SCENE_TOPIC, TF_TOPIC
+from bridge.scene import SCENE_TOPIC, TF_TOPIC, WORLD
+from controller.planner import load_planned
 from protocol.config import RobotConfig
 from protocol.keys import COMMANDS, STATE_KEYS, schema
 from protocol.kinematics import forward
@@ -294,3 +296,41 @@ def test_a_foxglove_address_off_loopback_needs_allow_remote_and_never_takes_comm
     allowed = ["--foxglove-port", "8765", "--foxglove-host", "192.0.2.7", "--allow-remote"]
     settings = foxglove_from_args(build_parser().parse_args(allowed))
     assert settings is not None and (settings.host, settings.commands) == ("192.0.2.7", False)
+
+
+LAYOUT = ROOT / "config" / "foxglove" / "scara.json"
+
+
+def test_the_shipped_layout_shows_what_is_served_and_its_buttons_send_commands_that_pass() -> None:
+    layout = json.loads(LAYOUT.read_text())
+    panels: dict[str, dict[str, Any]] = layout["configById"]
+    served = {*(f"scara/{name}" for name in STATE_KEYS), SCENE_TOPIC, TF_TOPIC}
+
+    def panel_ids(node: Any) -> set[str]:
+        if isinstance(node, str):
+            return {node}
+        return panel_ids(node["first"]) | panel_ids(node["second"])
+
+    assert panel_ids(layout["layout"]) == set(panels)  # every panel placed, none missing
+    three_d = panels["3D!scene"]
+    assert three_d["followTf"] == WORLD and set(three_d["topics"]) == {SCENE_TOPIC, TF_TOPIC}
+    plotted = [path["value"] for kind, config in panels.items() if kind.startswith("Plot!")
+               for path in config["paths"]]  # fmt: skip
+    assert "scara/joints.position[2]" in plotted and "scara/coordination.k_c" in plotted
+    for path in plotted:
+        topic, _, field = path.partition(".")
+        assert topic in served, path
+        properties = schema(topic.removeprefix("scara/"))["properties"]
+        assert field.split("[")[0] in properties, path
+    raw = {config["topicPath"] for kind, config in panels.items() if kind.startswith("Raw")}
+    assert "scara/status" in raw and raw <= served
+
+    buttons = {c["serviceName"]: c for k, c in panels.items() if k.startswith("CallService!")}
+    assert set(buttons) == {f"cmd/{name}" for name in COMMANDS}
+    base = load_planned("reference")
+    task = None
+    for name in ("waypoints", "obstacle", "mode", "run", "reset", "stop", "estop"):
+        body = parse_payload(name, buttons[f"cmd/{name}"]["requestPayload"].encode())
+        if name in TASK_COMMANDS:  # the task the buttons make is one the controller takes
+            task = edit_task(name, body, task, base)
+    assert task is not None and task.obstacle is not None and task.mode.value == "conventional"
