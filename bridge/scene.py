@@ -66,11 +66,13 @@ QUILL = "quill"
 
 TF_PERIOD = 1.0 / 30.0
 """s between two transforms: 30 Hz moves the arm smoothly and keeps a recording small."""
-SCENE_PERIOD = 0.1
-"""s at least between two scenes that changed (the path travelled grows while the arm moves)."""
+SCENE_PERIOD = 0.25
+"""s at least between two scenes that changed (the path travelled grows while the arm moves):
+each holds the whole path, up to 65 kB, so a recording's scenes stay within 260 kB/s before
+compression, 20 kB/s on a run of the reference task."""
 SCENE_REFRESH = 1.0
 """s at most between two scenes, changed or not, for a live client that joins late."""
-TRAIL_STEP = 0.002
+TRAIL_STEP = 0.005
 """m the tool moves before the path travelled takes another point."""
 TRAIL_POINTS = 2000
 """Points of the path travelled kept at most (the oldest go): memory stays flat however long

@@ -24,7 +24,7 @@ from websockets.typing import Subprotocol
 
 from bridge.commands import TASK_COMMANDS, edit_task, parse_payload
 from bridge.node import build_parser, foxglove_from_args
-from bridge.scene import SCENE_TOPIC, TF_TOPIC, WORLD
+from bridge.scene import SCENE_TOPIC, TF_TOPIC, TRAIL_STEP, WORLD
 from controller.planner import load_planned
 from protocol.config import RobotConfig
 from protocol.keys import COMMANDS, STATE_KEYS, schema
@@ -256,7 +256,8 @@ def test_foxglove_sees_the_run_in_3d_and_its_services_run_the_task_through_the_c
     travelled = entities["travelled"].lines[0].points
     last = REFERENCE["waypoints"][-1]
     end = (travelled[-1].x, travelled[-1].y, travelled[-1].z)
-    assert math.dist(end, (last["x"], last["y"], last["z"])) < 0.005
+    # a point every TRAIL_STEP of the tool's, and the arm settles within 1 mm of the waypoint
+    assert math.dist(end, (last["x"], last["y"], last["z"])) < TRAIL_STEP + 0.002
 
 
 def _schema_bytes(channel: dict[str, Any]) -> bytes:

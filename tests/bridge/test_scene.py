@@ -16,6 +16,7 @@ from bridge.scene import (
     LINK1,
     LINK2,
     QUILL,
+    SCENE_PERIOD,
     SCENE_REFRESH,
     TRAIL_POINTS,
     WORLD,
@@ -156,13 +157,14 @@ def test_transforms_come_at_30_hz_and_the_scene_when_it_changed_or_once_a_second
         transforms += due.transforms is not None
         scenes += due.scene is not None
     assert 89 <= transforms <= 91
-    # moving: at most every 0.1 s (11 in its first second); still: once a second (2 more)
-    assert 11 <= scenes <= 11 + 2 / SCENE_REFRESH + 1
+    # moving: at most every SCENE_PERIOD (5 in its first second); still: once a second (2 more)
+    moving = 1 / SCENE_PERIOD + 1
+    assert moving <= scenes <= moving + 2 / SCENE_REFRESH + 1
 
 
 def test_a_run_that_starts_begins_a_new_path_and_the_path_keeps_its_latest_points() -> None:
     scene = ArmScene(ROBOT)
-    step = 0.005  # rad: about 3 mm of the tool's, more than the path's step
+    step = 0.01  # rad: about 6 mm of the tool's, more than the path's step
     for tick in range(TRAIL_POINTS + 500):
         scene.on_joints((-2.5 + step * tick, 0.5, 0.0), tick / 100)
         scene.on_joints((-2.5 + step * tick, 0.5, 0.0), tick / 100 + 0.005)  # not moved

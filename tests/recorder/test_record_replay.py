@@ -32,7 +32,7 @@ from support import (
     wait_until,
 )
 
-from bridge.scene import SCENE_TOPIC, TF_PERIOD, TF_TOPIC
+from bridge.scene import SCENE_TOPIC, TF_PERIOD, TF_TOPIC, TRAIL_STEP
 from bridge.session import ZenohEndpoint
 from protocol.keys import DEFAULT_ROBOT, schema
 from protocol.kinematics import forward
@@ -115,11 +115,10 @@ def check_scene(foxglove: dict[str, list[tuple[int, Any]]], joints: list[dict[st
     assert len(entities["waypoints"].spheres) == len(scenario.waypoints)
     travelled = entities["travelled"].lines[0].points
     last = scenario.waypoints[-1]
-    assert len(travelled) > 100
-    assert (
-        math.dist((travelled[-1].x, travelled[-1].y, travelled[-1].z), (last.x, last.y, last.z))
-        < 0.005
-    )
+    assert len(travelled) > 50
+    end = (travelled[-1].x, travelled[-1].y, travelled[-1].z)
+    # a point every TRAIL_STEP of the tool's, and the arm settles within 1 mm of the waypoint
+    assert math.dist(end, (last.x, last.y, last.z)) < TRAIL_STEP + 0.002
 
 
 def launch(
