@@ -234,13 +234,6 @@ class ServiceNode(ControllerNode):
             return
         heard = now - self.plant.heard <= PLANT_HEARD
         unsent = self._world_sent == -float("inf")
-        if unsent and self.task is not None and self._holds_the_arm(self.task):
-            self.log.warning("task %s dropped: its obstacle holds the arm", self.task.name)
-            self.task = self.world = None
-            if self._task_answer is not None:  # accepted before the arm was heard
-                self._answer(Answered.SCENARIO, self._task_answer[0], Reason.INSIDE_OBSTACLE)
-                self._task_answer = None
-            return
         if unsent and heard and self.plant.world == world.number:
             world = self.world = replace(world, number=next_world(world.number))
         synced = self.plant.world == world.number
@@ -250,6 +243,9 @@ class ServiceNode(ControllerNode):
             self.log.warning("the plant holds world %d, not the run's", self.plant.world)
             self.enter_fault(ControllerFault.PLANT_FAULT)
         if not synced and heard and now - self._world_sent >= WORLD_RESEND:
+            if unsent and self.task is not None and self._holds_the_arm(self.task):
+                self._drop_task()
+                return
             self.worlds.send(world.encode())
             self._world_sent = now
             self.log.info("world %d sent to the plant", world.number)
@@ -258,6 +254,15 @@ class ServiceNode(ControllerNode):
             if synced or not heard or now >= give_up:
                 self._task_answer = None
                 self._answer(Answered.SCENARIO, ticket, Reason.NONE)
+
+    def _drop_task(self) -> None:
+        """The task whose world was about to be sent holds the arm: dropped, never sent."""
+        assert self.task is not None
+        self.log.warning("task %s dropped: its obstacle holds the arm", self.task.name)
+        self.task = self.world = None
+        if self._task_answer is not None:  # accepted before the arm was heard
+            self._answer(Answered.SCENARIO, self._task_answer[0], Reason.INSIDE_OBSTACLE)
+            self._task_answer = None
 
     def _on_task(self, payload: bytes) -> None:
         try:

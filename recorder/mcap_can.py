@@ -77,6 +77,8 @@ EXTENDED_FLAG = 0x8000_0000
 REMOTE_FLAG = 0x4000_0000
 ERROR_FLAG = 0x2000_0000
 """SocketCAN's CAN_EFF_FLAG, CAN_RTR_FLAG and CAN_ERR_FLAG, in ``can/other``'s 4-byte ID."""
+ID_MASK = 0x1FFF_FFFF
+"""The ID's 29 bits under the flags (SocketCAN's CAN_EFF_MASK)."""
 CAN_ID = struct.Struct(">I")
 OTHER_TOPIC = TOPIC_PREFIX + "other"
 
@@ -137,30 +139,26 @@ class FrameKind:
     def message(self, log_time: int, data: bytes) -> can.Message:
         """The frame a message of this channel holds; :class:`RecordingError` if it is
         shorter than ``can/other``'s ID."""
-        kind = self
+        arbitration_id = self.arbitration_id
+        extended, remote, error = self.is_extended_id, self.is_remote_frame, self.is_error_frame
         if self.id_in_data:
             if len(data) < CAN_ID.size:
                 raise RecordingError(f"a frame on {OTHER_TOPIC} has {len(data)} bytes, no ID")
             (can_id,) = CAN_ID.unpack_from(data)
             data = data[CAN_ID.size :]
-            kind = FrameKind(
-                can_id & 0x1FFF_FFFF,
-                bool(can_id & EXTENDED_FLAG),
-                bool(can_id & REMOTE_FLAG),
-                bool(can_id & ERROR_FLAG),
-                self.is_fd,
-                self.bitrate_switch,
-                self.channel,
+            arbitration_id = can_id & ID_MASK
+            extended, remote, error = (
+                bool(can_id & flag) for flag in (EXTENDED_FLAG, REMOTE_FLAG, ERROR_FLAG)
             )
         return can.Message(
             timestamp=log_time / 1e9,
-            arbitration_id=kind.arbitration_id,
-            is_extended_id=kind.is_extended_id,
-            is_remote_frame=kind.is_remote_frame,
-            is_error_frame=kind.is_error_frame,
-            is_fd=kind.is_fd,
-            bitrate_switch=kind.bitrate_switch,
-            channel=kind.channel or None,
+            arbitration_id=arbitration_id,
+            is_extended_id=extended,
+            is_remote_frame=remote,
+            is_error_frame=error,
+            is_fd=self.is_fd,
+            bitrate_switch=self.bitrate_switch,
+            channel=self.channel or None,
             dlc=len(data),
             data=data,
         )

@@ -23,10 +23,12 @@ def test_fault_spec_parsing_names_the_field() -> None:
     assert error.value.field == "inject-faults.jitter"
 
 
-def test_the_injector_drops_and_corrupts_the_share_it_is_told_to() -> None:
-    inner = can.Bus(interface="virtual", channel="faults", receive_own_messages=False)
-    listener = can.Bus(interface="virtual", channel="faults")
-    injector = FaultInjector(inner, FaultSpec(drop=0.1, corrupt=0.05, seed=4))
+def inject(spec: FaultSpec, channel: str) -> tuple[FaultInjector, list[can.Message]]:
+    """2000 commands through an injector of ``spec``; the injector (its counts) and what a
+    listener on the bus received."""
+    inner = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    listener = can.Bus(interface="virtual", channel=channel)
+    injector = FaultInjector(inner, spec)
     try:
         record = COMMAND.Record(Enable=1, Theta1Rate=0.5, Theta2Rate=-0.25, D3Rate=0.0)
         for counter in range(2000):
@@ -40,6 +42,11 @@ def test_the_injector_drops_and_corrupts_the_share_it_is_told_to() -> None:
     finally:
         injector.shutdown()
         listener.shutdown()
+    return injector, received
+
+
+def test_the_injector_drops_and_corrupts_the_share_it_is_told_to() -> None:
+    injector, received = inject(FaultSpec(drop=0.1, corrupt=0.05, seed=4), "faults")
     counts = injector.counts
     assert counts.sent == len(received) == 2000 - counts.dropped
     assert 150 < counts.dropped < 250 and 60 < counts.corrupted < 140
@@ -74,24 +81,9 @@ def test_frames_sent_together_are_dropped_and_corrupted_one_by_one() -> None:
 def test_duplicated_and_reordered_frames_repeat_or_stale_their_counter() -> None:
     """A duplicate repeats its counter and a frame held back comes after a newer one: the
     receiver's counter check acts on neither (``protocol/e2e.py``)."""
-    inner = can.Bus(interface="virtual", channel="faults-order", receive_own_messages=False)
-    listener = can.Bus(interface="virtual", channel="faults-order")
     spec = FaultSpec.parse("duplicate=0.05,reorder=0.05,seed=5")
     assert FaultSpec.parse(spec.text()) == spec
-    injector = FaultInjector(inner, spec)
-    try:
-        record = COMMAND.Record(Enable=1, Theta1Rate=0.5, Theta2Rate=-0.25, D3Rate=0.0)
-        for counter in range(2000):
-            data = COMMAND.encode(record, counter % 16)
-            injector.send(
-                can.Message(arbitration_id=COMMAND.frame_id, data=data, is_extended_id=False)
-            )
-        received = []
-        while (message := listener.recv(0.0)) is not None:
-            received.append(message)
-    finally:
-        injector.shutdown()
-        listener.shutdown()
+    injector, received = inject(spec, "faults-order")
     counts = injector.counts
     assert 50 < counts.duplicated < 160 and 50 < counts.reordered < 160
     monitor = E2EMonitor()
