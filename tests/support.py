@@ -28,6 +28,7 @@ import math
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -477,3 +478,34 @@ def quill_in_world(transforms: Any) -> tuple[float, float, float]:
         x, y, z = x + t.translation.x, y + t.translation.y, z + t.translation.z
         frame = t.parent_frame_id
     return x, y, z
+
+
+def listening_sockets(pid: int | str = "self") -> list[tuple[str, int]] | None:
+    """(address, port) of each TCP socket in LISTEN state that process ``pid`` holds (Linux;
+    None where there is no /proc to read them from)."""
+    proc = Path("/proc") / str(pid)
+    fd_dir = proc / "fd"
+    if not fd_dir.is_dir() or not (proc / "net/tcp").exists():
+        return None
+    inodes = set()
+    for fd in fd_dir.iterdir():
+        with_target = os.readlink(fd) if fd.is_symlink() else ""
+        if with_target.startswith("socket:["):
+            inodes.add(with_target[8:-1])
+    found: list[tuple[str, int]] = []
+    for table, family in (("tcp", 4), ("tcp6", 6)):
+        path = proc / "net" / table
+        if not path.exists():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            fields = line.split()
+            local, state, inode = fields[1], fields[3], fields[9]
+            if state != "0A" or inode not in inodes:  # 0A = LISTEN
+                continue
+            hex_address, hex_port = local.split(":")
+            if family == 4:
+                address = socket.inet_ntoa(bytes.fromhex(hex_address)[::-1])
+            else:
+                address = f"ipv6:{hex_address}"
+            found.append((address, int(hex_port, 16)))
+    return found

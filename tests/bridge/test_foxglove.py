@@ -17,7 +17,15 @@ from typing import Any
 import jsonschema
 import pytest
 from robot_stack import REFERENCE, RUN_TIME, START, Stack, start_router
-from support import ROOT, Processes, free_port, quill_in_world, read_foxglove, wait_until
+from support import (
+    ROOT,
+    Processes,
+    free_port,
+    listening_sockets,
+    quill_in_world,
+    read_foxglove,
+    wait_until,
+)
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 from websockets.typing import Subprotocol
@@ -270,7 +278,7 @@ def test_without_foxglove_commands_the_server_is_read_only(
 ) -> None:
     router = start_router(processes, name="router")
     port = free_port()
-    processes.start(
+    bridge = processes.start(
         "bridge.node", "--zenoh-port", str(router), "--foxglove-port", str(port),
         "--interface", "zenoh", "--channel", f"robot{router}", "--bus-option", f"port={router}",
         name="bridge",
@@ -279,6 +287,10 @@ def test_without_foxglove_commands_the_server_is_read_only(
     wait_until(lambda: len(client.channels) == len(STATE_KEYS) + 2, 10.0, "the channels")
     assert client.services == {}
     assert "services" not in client.server_info["capabilities"]
+    # the kernel agrees: the bridge listens on the Foxglove port, on loopback, and nothing else
+    listening = listening_sockets(bridge.pid)
+    if listening is not None:
+        assert listening == [("127.0.0.1", port)], listening
 
 
 @pytest.mark.parametrize(
