@@ -17,6 +17,10 @@ default); one that comes before its turn waits for it, a newer one replacing it,
 state before the arm stops is always published (``bridge/rate.py``). The other keys go out
 on change.
 Access control is the Zenoh router's (``config/zenoh/secure-router.json5``).
+
+With ``--foxglove-port`` the same samples, the arm in 3D and (with ``--foxglove-commands``)
+the commands are also served to Foxglove (``bridge/foxglove_server.py``); a command from
+there takes the same checks (:meth:`Bridge.call`).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -40,7 +45,8 @@ from bridge.commands import (
     edit_task,
     parse_payload,
 )
-from bridge.operator import Answer, OperatorNode
+from bridge.foxglove_server import FoxgloveServer
+from bridge.operator import ANSWER_TIMEOUT, Answer, OperatorNode, Reply
 from bridge.rate import RateLimit
 from bridge.session import add_zenoh_arguments, endpoint_from_args
 from bridge.view import Event
@@ -61,9 +67,7 @@ from protocol.messages import Request
 from protocol.node import stop_on_signals
 from protocol.realtime import yield_to_the_nodes
 from protocol.scenario import Scenario, task_document
-from protocol.zenoh_can.config import (
-    close,
-)
+from protocol.zenoh_can.config import DEFAULT_HOST, check_host, close
 
 QUEUE_SIZE = 256
 """Samples waiting for the Zenoh side before new ones are dropped."""
@@ -73,6 +77,18 @@ STATUS_PERIOD = 0.1
 """s between two looks at whether the status changed (the nodes' status rate)."""
 STEP = 0.005
 """s the CAN side waits for a frame before it looks at its timers again."""
+CALL_TIMEOUT = ANSWER_TIMEOUT + 1.0
+"""s a caller that waits for its reply (a Foxglove service) waits at most: the controller's
+time to answer, and the CAN side's time to notice it did not."""
+
+
+@dataclass(frozen=True, slots=True)
+class FoxgloveSettings:
+    """Where the Foxglove server listens, and whether it takes commands."""
+
+    host: str
+    port: int
+    commands: bool
 
 
 class Bridge:
@@ -85,6 +101,7 @@ class Bridge:
         robot: str,
         base: Scenario,
         rates: dict[str, float],
+        foxglove: FoxgloveSettings | None = None,
     ) -> None:
         self.robot = robot
         self.base = base
@@ -94,7 +111,7 @@ class Bridge:
         self.node = OperatorNode(bus, base, self._on_event, self._on_joint_state)
         self.log = self.node.log
         self._outbox: queue.Queue[tuple[str, Any]] = queue.Queue(QUEUE_SIZE)
-        self._commands: queue.SimpleQueue[tuple[str, Any, zenoh.Query]] = queue.SimpleQueue()
+        self._commands: queue.SimpleQueue[tuple[str, Any, Reply]] = queue.SimpleQueue()
         self.published = dict.fromkeys(STATE_KEYS, 0)
         self.dropped = dict.fromkeys(STATE_KEYS, 0)
         self._seq = dict.fromkeys(STATE_KEYS, 0)
@@ -109,6 +126,17 @@ class Bridge:
         self._heard: set[str] = set()
         """The nodes whose tokens are (or are queued to be) declared: the CAN thread's."""
         self._task_published: Scenario | None = None
+        self.foxglove = (  # first: a port taken fails before anything is declared
+            None
+            if foxglove is None
+            else FoxgloveServer(
+                foxglove.host,
+                foxglove.port,
+                base.robot,
+                lambda: self.node.task,
+                self.call if foxglove.commands else None,
+            )
+        )
         self._publishers = {
             name: session.declare_publisher(
                 state_key(robot, name),
@@ -240,13 +268,7 @@ class Bridge:
                 return
             payload = query.payload.to_bytes() if query.payload is not None else b""
             try:
-                body = parse_payload(command, payload)
-                work: Any = body
-                if command in TASK_COMMANDS:
-                    state = self.node.view.controller.state
-                    if state in ("running", "hold"):
-                        raise RefusedError("busy", message="the controller is running a task")
-                    work = edit_task(command, body, self.node.task, self.base)
+                work = self.check_command(command, payload)
             except MalformedCommandError as error:
                 _refuse_malformed(query, error.field, error.message)
                 return
@@ -254,19 +276,43 @@ class Bridge:
                 query.reply(query.key_expr, json.dumps(refusal.reply()).encode())
                 _drop(query)
                 return
-            self._commands.put((command, work, query))
+            self._commands.put((command, work, _replier(query)))
 
         return on_query
+
+    def check_command(self, command: str, payload: bytes) -> Any:
+        """What ``command`` with ``payload`` asks the CAN side to do, checked: the one path
+        of every command, from Zenoh or Foxglove. :class:`MalformedCommandError` or
+        :class:`RefusedError` if it must not reach the bus."""
+        body = parse_payload(command, payload)
+        if command not in TASK_COMMANDS:
+            return body
+        if self.node.view.controller.state in ("running", "hold"):
+            raise RefusedError("busy", message="the controller is running a task")
+        return edit_task(command, body, self.node.task, self.base)
+
+    def call(self, command: str, payload: bytes) -> dict[str, Any]:
+        """A command from a caller that waits for its reply (a Foxglove service): the reply
+        a Zenoh query gets; :class:`MalformedCommandError` if the payload is malformed."""
+        try:
+            work = self.check_command(command, payload)
+        except RefusedError as refusal:
+            return refusal.reply()
+        answers: queue.SimpleQueue[Answer] = queue.SimpleQueue()
+        self._commands.put((command, work, answers.put))
+        try:
+            return reply_body(answers.get(timeout=CALL_TIMEOUT))
+        except queue.Empty:  # the CAN side is stuck: the controller cannot have answered
+            return reply_body(Answer(False, "no_answer"))
 
     def _run_commands(self) -> None:
         """CAN side: forward the checked commands; each query is answered when the
         controller answers (or does not, in time)."""
         while True:
             try:
-                command, work, query = self._commands.get_nowait()
+                command, work, reply = self._commands.get_nowait()
             except queue.Empty:
                 return
-            reply = _replier(query)
             if command in TASK_COMMANDS:
                 self.node.set_task(work, reply)
             elif command == "estop":
@@ -295,6 +341,8 @@ class Bridge:
             except zenoh.ZError as error:
                 self.dropped[name] += 1
                 self.log.warning("%s not published: %s", name, error)
+            if self.foxglove is not None:
+                self.foxglove.on_sample(name, payload)
 
     def _set_alive(self, process: str, alive: bool) -> None:
         if alive:
@@ -322,6 +370,8 @@ class Bridge:
     def close(self) -> None:
         self.running = False
         self._publisher.join(2.0)
+        if self.foxglove is not None:
+            self.foxglove.stop()
         for token in self._alive.values():
             token.undeclare()
         entities: list[Any] = [*self._queryables, *self._publishers.values()]
@@ -341,10 +391,14 @@ def _drop(query: Any) -> None:
     query.drop()
 
 
-def _replier(query: zenoh.Query) -> Any:
+def reply_body(answer: Answer) -> dict[str, Any]:
+    """The reply to a command (``reply.schema.json``)."""
+    return {"accepted": answer.accepted, "reason": answer.reason}
+
+
+def _replier(query: zenoh.Query) -> Reply:
     def reply(answer: Answer) -> None:
-        body: dict[str, Any] = {"accepted": answer.accepted, "reason": answer.reason}
-        query.reply(query.key_expr, json.dumps(body).encode())
+        query.reply(query.key_expr, json.dumps(reply_body(answer)).encode())
         _drop(query)
 
     return reply
@@ -383,9 +437,57 @@ def build_parser() -> argparse.ArgumentParser:
         help="most samples per second of a key (default joints=100, tcp=100; 0: every change)",
     )
     add_zenoh_arguments(parser)
+    group = parser.add_argument_group(
+        "Foxglove (the arm in 3D, the state and, if asked, the commands in the Foxglove app)"
+    )
+    group.add_argument(
+        "--foxglove-port",
+        type=number(1, 65535, integer=True),
+        metavar="PORT",
+        help="serve Foxglove's WebSocket protocol on PORT (default: no Foxglove server); "
+        "open ws://HOST:PORT in Foxglove with config/foxglove/scara.json",
+    )
+    group.add_argument(
+        "--foxglove-host",
+        default=DEFAULT_HOST,
+        metavar="ADDRESS",
+        help="address the Foxglove server listens on (default %(default)s; another than "
+        "loopback needs --allow-remote)",
+    )
+    group.add_argument(
+        "--foxglove-commands",
+        action="store_true",
+        help="also take the commands (waypoints, obstacle, mode, reset, run, stop, estop) as "
+        "Foxglove services; without it Foxglove is read-only (its protocol has no users: "
+        "anyone who reaches the port may call them), refused on an address not on loopback",
+    )
     add_bus_arguments(parser)
     add_verbosity(parser)
     return parser
+
+
+def foxglove_from_args(args: argparse.Namespace) -> FoxgloveSettings | None:
+    """The Foxglove server the arguments ask for; ``ValueError`` if they are wrong."""
+    if args.foxglove_port is None:
+        if args.foxglove_commands:
+            raise ValueError("--foxglove-commands needs --foxglove-port")
+        return None
+    try:
+        host = check_host(
+            args.foxglove_host, allow_remote=args.allow_remote, name="--foxglove-host"
+        )
+    except can.CanInitializationError as error:
+        raise ValueError(str(error)) from None
+    if args.foxglove_commands:
+        try:
+            check_host(host, allow_remote=False)
+        except can.CanInitializationError:
+            raise ValueError(
+                f"--foxglove-commands on {host}: Foxglove's protocol has no users, so commands "
+                "are served on loopback only (a remote operator commands through the secure "
+                "router as the operator user)"
+            ) from None
+    return FoxgloveSettings(host, args.foxglove_port, args.foxglove_commands)
 
 
 @quiet_on_closed_pipe
@@ -397,6 +499,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         robot = check_robot(args.robot)
         base = load_planned(args.scenario) if args.scenario else Scenario("bridge", (), None)
         endpoint = endpoint_from_args(args)
+        foxglove = foxglove_from_args(args)
         bus = open_bus_from_args(args)
     except (ScaraError, can.CanError, ValueError, OSError) as error:
         print(f"scara-bridge: {error}", file=sys.stderr)
@@ -407,9 +510,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         bus.shutdown()
         print(f"scara-bridge: no Zenoh session at {endpoint}: {error}", file=sys.stderr)
         return 2
-    bridge = Bridge(bus, session, robot, base, DEFAULT_RATES | dict(args.rate))
+    try:
+        bridge = Bridge(bus, session, robot, base, DEFAULT_RATES | dict(args.rate), foxglove)
+    except RuntimeError as error:  # the SDK's: the Foxglove port is taken
+        close(session)
+        bus.shutdown()
+        print(f"scara-bridge: no Foxglove server: {error}", file=sys.stderr)
+        return 2
 
     stop_on_signals(bridge.stop)
+    if foxglove is not None:
+        access = "with commands" if foxglove.commands else "read-only"
+        print(
+            f"scara-bridge: Foxglove on ws://{foxglove.host}:{foxglove.port} ({access})",
+            file=sys.stderr,
+        )
     print(f"scara-bridge: {robot} on scara/{robot}/ (Ctrl-C to stop)", file=sys.stderr, flush=True)
     try:
         bridge.run()

@@ -13,6 +13,9 @@ killed at any moment loses no more than that of its last frames. The file holds:
   (``scara/joints``, ``scara/tcp``, ``scara/coordination``, ``scara/status``,
   ``scara/events``): JSON with the same JSON Schemas as the bridge's keys; in ``status`` the
   ``bridge`` part holds the recorder's own counts;
+- the arm in 3D as Foxglove draws it (``bridge/scene.py``): ``foxglove.SceneUpdate`` on
+  ``scara/scene`` and ``foxglove.FrameTransforms`` on ``scara/tf`` (protobuf, with Foxglove's
+  schemas), drawn from the decoded joint state and the scenario (if given), at most 30 Hz;
 - the recorder's counts (``recorder/counts``: frames received and dropped so far) at the end
   of each chunk, which ``scara-record recover`` reads back from a file cut short;
 - metadata ``recording`` (software version, command line, start, frames written and
@@ -34,8 +37,11 @@ from pathlib import Path
 from typing import Any
 
 import can
+from foxglove import Schema
+from foxglove.messages import FrameTransforms, SceneUpdate
 from mcap.writer import Writer
 
+from bridge.scene import SCENE_TOPIC, STATE_TOPIC_PREFIX, TF_TOPIC, ArmScene, Joints
 from bridge.view import VIEWED, RobotView
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, enlarge_receive_buffer, open_bus_from_args
@@ -73,7 +79,7 @@ DECODED = ("joints", "tcp", "coordination", "status", "events")
 JOINTS_PERIOD = 0.01
 """s between decoded joint-state samples (100 Hz, the bridge's default rate); the raw
 frames keep every one."""
-STATE_PREFIX = "scara/"
+STATE_PREFIX = STATE_TOPIC_PREFIX
 RUN_FILES = {
     "controller.json": "application/json",
     "plant_sim.json": "application/json",
@@ -84,12 +90,42 @@ STATE_ENCODING = "json"
 LISTENED = {codec.frame_id for codec in VIEWED}
 
 
-class StateChannels:
-    """The decoded-state channels of one writer: JSON with the bridge's schemas."""
+class SceneChannels:
+    """The arm in 3D on one writer (:class:`~bridge.scene.ArmScene`'s messages, by the bus
+    timestamps), as protobuf with Foxglove's schemas."""
 
-    def __init__(self, writer: Writer, robot: Any) -> None:
+    def __init__(self, writer: Writer, robot: Any, task: Scenario | None) -> None:
+        self.writer = writer
+        self.scene = ArmScene(robot, task)
+        self._scene_id = _protobuf_channel(writer, SCENE_TOPIC, SceneUpdate.get_schema())
+        self._transforms_id = _protobuf_channel(writer, TF_TOPIC, FrameTransforms.get_schema())
+
+    def on_joints(self, position: Joints, received: float) -> None:
+        """The messages due at a decoded joint state, logged at its bus timestamp."""
+        due = self.scene.on_joints(position, received)
+        stamp = int(received * 1e9)
+        if due.transforms is not None:
+            self.writer.add_message(self._transforms_id, stamp, due.transforms.encode(), stamp)
+        if due.scene is not None:
+            self.writer.add_message(self._scene_id, stamp, due.scene.encode(), stamp)
+
+    def on_event(self, event: str) -> None:
+        self.scene.on_event(event)
+
+
+def _protobuf_channel(writer: Writer, topic: str, schema: Schema) -> int:
+    schema_id = writer.register_schema(schema.name, schema.encoding, schema.data)
+    return writer.register_channel(topic, "protobuf", schema_id)
+
+
+class StateChannels:
+    """The decoded-state channels of one writer: JSON with the bridge's schemas, and the
+    scene drawn from them."""
+
+    def __init__(self, writer: Writer, robot: Any, task: Scenario | None = None) -> None:
         self.writer = writer
         self.view = RobotView(robot)
+        self.scene = SceneChannels(writer, robot, task)
         self.monitor = E2EMonitor()
         self._parts = JointStateParts()
         self._seq = dict.fromkeys(DECODED, 0)
@@ -119,8 +155,10 @@ class StateChannels:
                 self.view.on_joint_state(complete[0], complete[1], received)
                 self._write("joints", self.view.joints_payload(), received)
                 self._write("tcp", self.view.tcp_payload(), received)
+                self.scene.on_joints(complete[0], received)
             return
         for name, detail in self.view.on_frame(codec, record, received):
+            self.scene.on_event(name)
             self._write("events", {"t": received, "event": name, "detail": detail}, received)
         if codec.name == "ControllerCoordination":
             self._write("coordination", self.view.coordination_payload(), received)
@@ -151,7 +189,12 @@ class Recorder:
     """Bus reader (the caller's thread, :meth:`run`) and file writer (a thread of its own)."""
 
     def __init__(
-        self, bus: can.BusABC, path: Path, robot: Any, command_line: Sequence[str]
+        self,
+        bus: can.BusABC,
+        path: Path,
+        robot: Any,
+        command_line: Sequence[str],
+        task: Scenario | None = None,
     ) -> None:
         self.bus = bus
         self.path = path
@@ -162,7 +205,7 @@ class Recorder:
         self._stream = path.open("wb")
         self._writer = open_writer(self._stream)
         self._frames = FrameChannels(self._writer)
-        self._state = StateChannels(self._writer, robot)
+        self._state = StateChannels(self._writer, robot, task)
         self._counts = counts_channel(self._writer)
         flush(self._writer)  # the header on disk: killed before its first chunk, still MCAP
         self._started = time.time()
@@ -343,7 +386,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     robot = (scenario or Scenario("recorder", (), None)).robot
     try:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        recorder = Recorder(bus, args.out, robot, ["scara-record", *arguments])
+        recorder = Recorder(bus, args.out, robot, ["scara-record", *arguments], scenario)
     except OSError as error:
         bus.shutdown()
         print(f"scara-record: {args.out}: {error.strerror}", file=sys.stderr)

@@ -11,6 +11,9 @@
 - :func:`wait_while_growing`: a wait that fails only once progress has stopped.
 - :data:`NUMPY_IS_LIBM`: whether numpy's transcendental functions give libm's bits here, and
   :data:`NOT_LIBM_TOLERANCE` where they do not.
+- :func:`read_foxglove`: a Foxglove protobuf message read with the schema that came with it,
+  checked to read the same with Foxglove's published schemas (``foxglove-schemas-protobuf``);
+  :func:`quill_in_world`: where its transforms put the arm's quill.
 
 Network rules (``docs/design.md``): Zenoh only through the project's own configuration, on
 127.0.0.1, with an explicit port.
@@ -19,11 +22,13 @@ Network rules (``docs/design.md``): Zenoh only through the project's own configu
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import math
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -37,7 +42,9 @@ import can
 import numpy as np
 import pytest
 import zenoh
+from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
 
+from bridge.scene import QUILL, WORLD
 from controller.node import (
     GIVE_UP_VARIABLE,
     LOCKSTEP_GIVE_UP,
@@ -441,6 +448,67 @@ def open_client(port: int, user: str | None = None, password: str | None = None)
         config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
         config.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
     return zenoh.open(config)
+
+
+def read_foxglove(schema_name: str, schema_data: bytes, data: bytes) -> Any:
+    """``data`` decoded with the FileDescriptorSet it came with (an MCAP channel's schema, an
+    advertised channel's), as Foxglove decodes it; it must decode to the same with Foxglove's
+    published schema of that name (``foxglove.SceneUpdate`` ...), which is returned."""
+    pool = descriptor_pool.DescriptorPool()
+    for file in descriptor_pb2.FileDescriptorSet.FromString(schema_data).file:
+        pool.Add(file)
+    own = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
+    type_name = schema_name.removeprefix("foxglove.")
+    module = importlib.import_module(f"foxglove_schemas_protobuf.{type_name}_pb2")
+    published = getattr(module, type_name).FromString(data)
+    assert json_format.MessageToDict(own.FromString(data)) == json_format.MessageToDict(published)
+    return published
+
+
+def quill_in_world(transforms: Any) -> tuple[float, float, float]:
+    """Where a decoded ``foxglove.FrameTransforms`` puts the scene's quill frame in its world
+    frame, composed along the chain (rotations about z only, as the arm's are)."""
+    by_child = {t.child_frame_id: t for t in transforms.transforms}
+    x = y = z = 0.0
+    frame = QUILL
+    while frame != WORLD:
+        t = by_child[frame]
+        yaw = 2.0 * math.atan2(t.rotation.z, t.rotation.w)
+        x, y = math.cos(yaw) * x - math.sin(yaw) * y, math.sin(yaw) * x + math.cos(yaw) * y
+        x, y, z = x + t.translation.x, y + t.translation.y, z + t.translation.z
+        frame = t.parent_frame_id
+    return x, y, z
+
+
+def listening_sockets(pid: int | str = "self") -> list[tuple[str, int]] | None:
+    """(address, port) of each TCP socket in LISTEN state that process ``pid`` holds (Linux;
+    None where there is no /proc to read them from)."""
+    proc = Path("/proc") / str(pid)
+    fd_dir = proc / "fd"
+    if not fd_dir.is_dir() or not (proc / "net/tcp").exists():
+        return None
+    inodes = set()
+    for fd in fd_dir.iterdir():
+        with_target = os.readlink(fd) if fd.is_symlink() else ""
+        if with_target.startswith("socket:["):
+            inodes.add(with_target[8:-1])
+    found: list[tuple[str, int]] = []
+    for table, family in (("tcp", 4), ("tcp6", 6)):
+        path = proc / "net" / table
+        if not path.exists():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            fields = line.split()
+            local, state, inode = fields[1], fields[3], fields[9]
+            if state != "0A" or inode not in inodes:  # 0A = LISTEN
+                continue
+            hex_address, hex_port = local.split(":")
+            if family == 4:
+                address = socket.inet_ntoa(bytes.fromhex(hex_address)[::-1])
+            else:
+                address = f"ipv6:{hex_address}"
+            found.append((address, int(hex_port, 16)))
+    return found
 
 
 CHROMIUM = Path("/usr/bin/chromium")

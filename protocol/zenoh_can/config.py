@@ -63,10 +63,10 @@ def key_for_channel(channel: object) -> str:
     return key
 
 
-def check_host(value: object, *, allow_remote: bool, name: str = "host") -> str:
+def check_host(value: object, *, allow_remote: bool, name: str = "zenoh host") -> str:
     """Normalise an address; loopback only unless allow_remote, never a wildcard or group."""
     if not isinstance(value, str) or not value.strip():
-        raise can.CanInitializationError(f"zenoh {name} must be an explicit address, got {value!r}")
+        raise can.CanInitializationError(f"{name} must be an explicit address, got {value!r}")
     text = value.strip()
     bare = text[1:-1] if text.startswith("[") and text.endswith("]") else text
     if bare.lower() == "localhost":
@@ -78,16 +78,16 @@ def check_host(value: object, *, allow_remote: bool, name: str = "host") -> str:
     if address is not None:
         if address.is_unspecified or address.is_multicast:
             raise can.CanInitializationError(
-                f"zenoh {name} {value!r} is not an explicit unicast address "
+                f"{name} {value!r} is not an explicit unicast address "
                 "(wildcard and multicast addresses are refused)"
             )
         if address.is_loopback:
             return str(address)
     elif not _HOSTNAME.match(bare):
-        raise can.CanInitializationError(f"zenoh {name} {value!r} is not an address or host name")
+        raise can.CanInitializationError(f"{name} {value!r} is not an address or host name")
     if not allow_remote:
         raise can.CanInitializationError(
-            f"zenoh {name} {value!r} is not a loopback address (127.x.x.x, ::1, localhost); "
+            f"{name} {value!r} is not a loopback address (127.x.x.x, ::1, localhost); "
             "use another address on purpose with --allow-remote (allow_remote=True in code)"
         )
     return bare

@@ -1,7 +1,8 @@
 """A fleet in one page: two robots served beside each other on one machine (``scara-run
 --serve --secure --robot NAME`` twice, sharing the routers), one ``scara-gui`` logged in as
 the operator. The page lists both, switches between them, shows the one chosen and commands
-it, not the other: checked on each robot's own Zenoh keys."""
+it, not the other: checked on each robot's own Zenoh keys. The GUI's server listens on
+loopback only."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from typing import Any
 import pytest
 import zenoh
 from conftest import start_gui
-from support import VIEWPORT, Processes, free_port, open_client, wait_until
+from support import VIEWPORT, Processes, free_port, listening_sockets, open_client, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(240)]
 
@@ -68,6 +69,9 @@ def test_two_robots_served_side_by_side_one_page_switches_and_commands_the_one_s
         processes, "--zenoh-port", str(secure_port), "--user", "operator",
         "--password-file", str(password), name="gui",
     )  # fmt: skip
+    listening = listening_sockets(processes.started[-1].pid)
+    if listening is not None:  # the kernel agrees: one web server on loopback, nothing else
+        assert listening == [("127.0.0.1", int(url.rstrip("/").rsplit(":", 1)[1]))], listening
     page = browser.new_page(viewport=VIEWPORT)
     try:
         page.goto(url)

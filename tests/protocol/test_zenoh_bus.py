@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
-import os
 import signal
 import socket
 import subprocess
@@ -14,12 +13,19 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 
 import can
 import pytest
 import zenoh
-from support import ROOT, SLOWDOWN, frames_with_every_flag, free_port, same_frame, wait_until
+from support import (
+    ROOT,
+    SLOWDOWN,
+    frames_with_every_flag,
+    free_port,
+    listening_sockets,
+    same_frame,
+    wait_until,
+)
 
 from protocol.zenoh_can import ZenohBus
 from protocol.zenoh_can.config import build_zenoh_config, client_config
@@ -109,39 +115,10 @@ def test_a_bus_is_a_client_of_its_router_and_listens_on_no_socket(
     assert bus.router_connected
     # The kernel agrees: the only TCP socket this process listens on is the router's, on
     # 127.0.0.1 (the bus itself listens on nothing).
-    listening = _listening_sockets_of_this_process()
+    listening = listening_sockets()
     if listening is None:
         pytest.skip("no /proc here to read this process's sockets from")
     assert listening == [("127.0.0.1", local_router.port)], listening
-
-
-def _listening_sockets_of_this_process() -> list[tuple[str, int]] | None:
-    """(address, port) of each TCP socket in LISTEN state owned by this process (Linux)."""
-    fd_dir = Path("/proc/self/fd")
-    if not fd_dir.is_dir() or not Path("/proc/self/net/tcp").exists():
-        return None
-    inodes = set()
-    for fd in fd_dir.iterdir():
-        with_target = os.readlink(fd) if fd.is_symlink() else ""
-        if with_target.startswith("socket:["):
-            inodes.add(with_target[8:-1])
-    found: list[tuple[str, int]] = []
-    for table, family in (("tcp", 4), ("tcp6", 6)):
-        path = Path("/proc/self/net") / table
-        if not path.exists():
-            continue
-        for line in path.read_text().splitlines()[1:]:
-            fields = line.split()
-            local, state, inode = fields[1], fields[3], fields[9]
-            if state != "0A" or inode not in inodes:  # 0A = LISTEN
-                continue
-            hex_address, hex_port = local.split(":")
-            if family == 4:
-                address = socket.inet_ntoa(bytes.fromhex(hex_address)[::-1])
-            else:
-                address = f"ipv6:{hex_address}"
-            found.append((address, int(hex_port, 16)))
-    return found
 
 
 def test_no_router_is_reported_with_how_to_start_one(port: int) -> None:

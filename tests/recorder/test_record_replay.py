@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import shutil
 import signal
 import statistics
@@ -20,10 +21,21 @@ import can
 import jsonschema
 import pytest
 from mcap.reader import make_reader
-from support import ROOT, SLOWDOWN, Observer, Processes, Transport, wait_until
+from support import (
+    ROOT,
+    SLOWDOWN,
+    Observer,
+    Processes,
+    Transport,
+    quill_in_world,
+    read_foxglove,
+    wait_until,
+)
 
+from bridge.scene import SCENE_TOPIC, TF_PERIOD, TF_TOPIC, TRAIL_STEP
 from bridge.session import ZenohEndpoint
 from protocol.keys import DEFAULT_ROBOT, schema
+from protocol.kinematics import forward
 from protocol.messages import STATE
 from protocol.scenario import load_scenario
 from protocol.zenoh_can import ZenohBus
@@ -48,15 +60,24 @@ def by_id(messages: list[can.Message]) -> dict[int, list[bytes]]:
     return dict(found)
 
 
-def mcap_contents(path: Path) -> tuple[list[can.Message], dict[str, list[Any]], Any]:
-    """The frames, the decoded channels and the reader's summary, with mcap's own reader."""
+def mcap_contents(
+    path: Path,
+) -> tuple[list[can.Message], dict[str, list[Any]], dict[str, list[tuple[int, Any]]], Any]:
+    """The frames, the decoded JSON channels, the Foxglove protobuf channels (log time and
+    message, read with their own schemas and Foxglove's published ones) and the reader's
+    summary, with mcap's own reader."""
     frames: list[can.Message] = []
     decoded: dict[str, list[Any]] = defaultdict(list)
+    foxglove: dict[str, list[tuple[int, Any]]] = defaultdict(list)
     with path.open("rb") as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
-        for _, channel, message in reader.iter_messages(log_time_order=True):
-            if channel.message_encoding == "can-frame":
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if channel.message_encoding == "protobuf":
+                assert schema is not None and schema.encoding == "protobuf", channel.topic
+                read = read_foxglove(schema.name, schema.data, message.data)
+                foxglove[channel.topic].append((message.log_time, read))
+            elif channel.message_encoding == "can-frame":
                 frames.append(
                     can.Message(
                         timestamp=message.log_time / 1e9,
@@ -68,7 +89,36 @@ def mcap_contents(path: Path) -> tuple[list[can.Message], dict[str, list[Any]], 
                 decoded[channel.topic].append(json.loads(message.data))
         attachments = {a.name: a.data for a in reader.iter_attachments()}
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
-    return frames, dict(decoded), (summary, attachments, metadata)
+    return frames, dict(decoded), dict(foxglove), (summary, attachments, metadata)
+
+
+def check_scene(foxglove: dict[str, list[tuple[int, Any]]], joints: list[dict[str, Any]]) -> None:
+    """The reference run in 3D: transforms at 30 Hz that put the quill where the recorded
+    joints put the tool; scenes with the scenario's obstacle and waypoints and the path the
+    tool travelled, ending near the last waypoint."""
+    scenario = load_scenario("reference")
+    transforms, scenes = foxglove[TF_TOPIC], foxglove[SCENE_TOPIC]
+    span = (transforms[-1][0] - transforms[0][0]) / 1e9
+    # 30 Hz at most (fewer where the decoded joint states paused: lockstep, a loaded machine)
+    assert 50 < len(transforms) <= span / TF_PERIOD + 1
+    by_time = {int(sample["t"] * 1e9): sample["position"] for sample in joints}  # as logged
+    for log_time, message in transforms:
+        position = by_time[log_time]  # a transform is drawn from a recorded joint state
+        assert quill_in_world(message) == pytest.approx(forward(scenario.robot, *position))
+    entities = {entity.id: entity for entity in scenes[-1][1].entities}
+    real = entities["obstacle"].cylinders[0]
+    assert scenario.obstacle is not None
+    assert (real.pose.position.x, real.pose.position.y) == (
+        scenario.obstacle.x,
+        scenario.obstacle.y,
+    )
+    assert len(entities["waypoints"].spheres) == len(scenario.waypoints)
+    travelled = entities["travelled"].lines[0].points
+    last = scenario.waypoints[-1]
+    assert len(travelled) > 50
+    end = (travelled[-1].x, travelled[-1].y, travelled[-1].z)
+    # a point every TRAIL_STEP of the tool's, and the arm settles within 1 mm of the waypoint
+    assert math.dist(end, (last.x, last.y, last.z)) < TRAIL_STEP + 0.002
 
 
 def launch(
@@ -89,7 +139,7 @@ def test_a_run_is_recorded_whole_frames_state_results_and_log(
     out = tmp_path / "run"
     done = launch(transport, out, clock)
     assert done.returncode == 0, done.stderr
-    frames, decoded, (summary, attachments, metadata) = mcap_contents(out / "run.mcap")
+    frames, decoded, foxglove, (summary, attachments, metadata) = mcap_contents(out / "run.mcap")
     wait_until(
         lambda: len(observer.frames()) >= len(frames), 5.0, "the listener to hear what was recorded"
     )
@@ -102,8 +152,9 @@ def test_a_run_is_recorded_whole_frames_state_results_and_log(
     assert int(recording["frames_dropped"]) == 0
     assert int(recording["frames_written"]) == len(frames)
     assert summary.chunk_indexes and summary.statistics.message_count == len(frames) + sum(
-        len(samples) for samples in decoded.values()
+        len(samples) for samples in (*decoded.values(), *foxglove.values())
     )
+    check_scene(foxglove, decoded["scara/joints"])
 
     # the decoded state fits the bridge's schemas, the recorder's counts theirs; the run's
     # events are there in order
@@ -192,7 +243,7 @@ def test_a_recorder_killed_mid_run_is_recovered_and_reports_the_loss(
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "was cut short" in done.stdout and "cannot be counted" in done.stdout, done.stdout
-    frames, _, (summary, _, _) = mcap_contents(file.with_suffix(".recovered.mcap"))
+    frames, _, _, (summary, _, _) = mcap_contents(file.with_suffix(".recovered.mcap"))
     assert summary.chunk_indexes and len(frames) > 1000
     seen = by_id(observer.frames())
     for frame_id, data in by_id(frames).items():  # what was kept is the start of each stream
