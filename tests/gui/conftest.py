@@ -10,19 +10,14 @@
 
 from __future__ import annotations
 
-import sys
-import urllib.request
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
-from support import BROWSER_ARGS, CHROMIUM, ROOT, VIEWPORT, Processes, free_port, wait_until
-
-sys.path.insert(0, str(ROOT / "tests" / "bridge"))  # the bridge tests' robot as a service
+from gui_stack import Robot, start_gui
 from robot_stack import COMMS, PASSWORDS, SECURE_CONFIG, START, Stack, start_router
+from support import BROWSER_ARGS, CHROMIUM, VIEWPORT, Processes, wait_until
 
 TASK = Path(__file__).resolve().parent / "patient_reference.toml"
 """The robot's task at start: the reference with a long timeout (see the file)."""
@@ -56,35 +51,6 @@ def browser() -> Iterator[Any]:
         chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), args=BROWSER_ARGS)
         yield chromium
         chromium.close()
-
-
-def start_gui(processes: Processes, *args: str, name: str) -> str:
-    """``scara-gui ARGS`` on a free port; its URL once it serves the page."""
-    port = free_port()
-    gui = processes.start("gui.cli", "--port", str(port), *args, name=name)
-    url = f"http://127.0.0.1:{port}/"
-
-    def serves() -> bool:
-        assert gui.poll() is None, gui.output()
-        try:
-            with urllib.request.urlopen(url, timeout=1.0) as response:
-                return bool(response.status == 200)
-        except OSError:
-            return False
-
-    wait_until(serves, START, f"{name} to serve its page")
-    return url
-
-
-@dataclass
-class Robot:
-    """The secure stack, and the pages' servers on it."""
-
-    stack: Stack
-    operator_url: str
-    monitor_url: str
-    session: zenoh.Session
-    """The test's own Zenoh session as operator, to check what the page did."""
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import start_gui
+from gui_stack import start_gui
 from support import VIEWPORT, Processes, free_port, listening_sockets, open_client, wait_until
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(240)]

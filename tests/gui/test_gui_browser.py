@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import Robot, start_gui
+from gui_stack import Robot, start_gui
 from robot_stack import REFERENCE, ROBOT, RUN_TIME, command, latest
 from support import SLOWDOWN, Processes, free_port, wait_until
 
