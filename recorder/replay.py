@@ -190,7 +190,10 @@ def read_state(path: Path) -> Iterator[StateSample]:
                     name = channel.topic.removeprefix(STATE_PREFIX)
                     yield StateSample(message.log_time / 1e9, name, message.data)
     except READ_ERRORS as error:
-        raise RecordingError(f"{path}: not a readable MCAP recording ({error})") from None
+        raise RecordingError(
+            f"{path}: not a readable MCAP recording ({error}); if its writer was killed, "
+            "'scara-record recover FILE' rewrites it"
+        ) from None
 
 
 class ZenohStateSink:

@@ -42,6 +42,7 @@ from protocol.cli import (
     quiet_on_closed_pipe,
 )
 from protocol.errors import ScaraError
+from protocol.keys import DEFAULT_ROBOT, check_robot
 from protocol.node import ClockMode, add_timing_arguments
 from protocol.scenario import Mode
 from protocol.zenoh_can.config import (
@@ -63,6 +64,7 @@ SECURE_CONFIG = Path(__file__).resolve().parent.parent / "config" / "zenoh" / "s
 CREDENTIALS = SECURE_CONFIG.parent / "credentials.txt"
 """The demo users, a ``user:password`` a line (change the passwords)."""
 SECURE_PORT = 17448
+DEFAULT_OUT = Path("out/run")
 BRIDGE_USER = "bridge"
 """The user the bridge logs in as: the one ``SECURE_CONFIG`` lets publish and answer."""
 ROLES = {"operator": "reads the state and sends commands", "monitor": "reads the state only"}
@@ -85,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=ClockMode.REALTIME.value,
         help="real time (each process on its own clock) or lockstep (deterministic)",
     )
-    parser.add_argument("--out", type=Path, default=Path("out/run"), help="results folder")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="results folder")
     parser.add_argument(
         "--controller-first", action="store_true", help="start the controller before the plant"
     )
@@ -112,6 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="start the controller as a service and scara-bridge (keys on the CAN router), "
         "then wait for commands on Zenoh until Ctrl-C",
+    )
+    parser.add_argument(
+        "--robot",
+        help=f"with --serve: the robot's name on Zenoh (default {DEFAULT_ROBOT}); its CAN frames "
+        "go on a channel of that name, so robots started so share the routers but not a bus",
     )
     secure = parser.add_argument_group("access control (with --serve)")
     secure.add_argument(
@@ -201,6 +208,8 @@ def bridge_command(args: argparse.Namespace) -> list[str]:
     command += ["--channel", channel, "--zenoh-host", host, "--zenoh-port", str(port)]
     if args.secure:
         command += ["--user", BRIDGE_USER]
+    if args.robot:
+        command += ["--robot", args.robot]
     for option in args.bus_option:
         command += ["--bus-option", option]
     if options.get("allow_remote"):
@@ -256,6 +265,8 @@ def serving_hint(args: argparse.Namespace, users: dict[str, str]) -> str:
         if host == DEFAULT_HOST
         else f"--zenoh-host {host} --zenoh-port {port}"
     )
+    if args.robot:
+        where += f" --robot {args.robot}"
     if not args.secure:
         return f"scara-run: serving; watch and command it with: scara-monitor {where}"
     lines = [
@@ -359,6 +370,25 @@ def _interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+def name_the_robot(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--robot NAME``: its frames on a CAN-over-Zenoh channel of its own (unless one is
+    given) and its results in ``OUT/NAME``, so that a second robot served beside the first
+    shares its routers (each launcher starts one only where none answers) and nothing else."""
+    if args.robot is None:
+        return
+    if not args.serve:
+        parser.error("--robot goes with --serve: only a served robot has a name on Zenoh")
+    try:
+        check_robot(args.robot)
+    except ValueError as error:
+        parser.error(f"--robot: {error}")
+    interface, _ = resolve_transport(args.interface, args.channel)
+    if interface == "zenoh" and args.channel is None:
+        args.channel = args.robot
+    if args.out == DEFAULT_OUT:
+        args.out = DEFAULT_OUT / args.robot
+
+
 def check_secure(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, str]:
     """The users of ``--credentials`` when ``--secure`` (none otherwise); exits 2 on flags that
     do not go together (ScaraError from :func:`read_credentials`)."""
@@ -389,6 +419,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         scenario = load_planned(args.scenario)
         parse_options(args.bus_option)
+        name_the_robot(parser, args)
         users = check_secure(parser, args)
     except (ScaraError, argparse.ArgumentTypeError) as error:
         print(f"scara-run: {error}", file=sys.stderr)
@@ -418,17 +449,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.secure:
             password = users[BRIDGE_USER]
             host, port = keys_router(args)
-            with tempfile.TemporaryDirectory(prefix="scara-run-") as folder:  # read at start-up
-                secure_router = subprocess.Popen(secure_router_command(args, Path(folder)))
-                if not wait_for_router(
-                    secure_router, lambda: router_reachable(host, port, BRIDGE_USER, password)
-                ):
-                    print(
-                        f"scara-run: the secure router did not let {BRIDGE_USER} in on "
-                        f"{host}:{port} (is the port taken? see its output above)",
-                        file=sys.stderr,
-                    )
-                    return 1
+            if router_reachable(host, port, BRIDGE_USER, password):  # another robot's: share it
+                print(f"scara-run: joining the secure router on {host}:{port}", file=sys.stderr)
+            else:
+                with tempfile.TemporaryDirectory(prefix="scara-run-") as folder:  # read at start
+                    secure_router = subprocess.Popen(secure_router_command(args, Path(folder)))
+                    if not wait_for_router(
+                        secure_router, lambda: router_reachable(host, port, BRIDGE_USER, password)
+                    ):
+                        print(
+                            f"scara-run: the secure router did not let {BRIDGE_USER} in on "
+                            f"{host}:{port} (is the port taken? see its output above)",
+                            file=sys.stderr,
+                        )
+                        return 1
             bridge_environment = os.environ | {PASSWORD_VARIABLE: password}
         if args.record and not args.serve:
             recorder = start_recorder(args)

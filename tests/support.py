@@ -509,3 +509,12 @@ def listening_sockets(pid: int | str = "self") -> list[tuple[str, int]] | None:
                 address = f"ipv6:{hex_address}"
             found.append((address, int(hex_port, 16)))
     return found
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+"""Debian's Chromium, which Playwright drives headless (``tools/browser-setup``): Playwright's
+own browser download is not reachable from these machines."""
+BROWSER_ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader"]
+"""No sandbox as root in a container; SwiftShader: WebGL in software, there is no GPU."""
+VIEWPORT = {"width": 1280, "height": 760}
+"""The pages' size in the browser tests and the GUI benchmark."""

@@ -1,5 +1,6 @@
 """Dependencies point one way: ``protocol`` <- ``controller``, ``plant_sim`` <- ``sim``;
-``protocol`` <- ``controller`` <- ``bridge``; ``recorder`` above them, ``soak`` above all.
+``protocol`` <- ``controller`` <- ``bridge``; ``recorder`` above them, ``gui`` above the
+recorder, ``soak`` above all.
 
 ``controller`` and ``plant_sim`` never import each other, and ``protocol`` imports neither;
 and no module imports itself through others (no cycle in the graph of the project's modules).
@@ -15,7 +16,7 @@ import networkx as nx
 import pytest
 from support import ROOT
 
-PACKAGES = ("protocol", "controller", "plant_sim", "sim", "bridge", "recorder", "soak")
+PACKAGES = ("protocol", "controller", "plant_sim", "sim", "bridge", "recorder", "gui", "soak")
 ALLOWED = {
     "protocol": {"protocol"},
     "controller": {"controller", "protocol"},
@@ -23,6 +24,7 @@ ALLOWED = {
     "sim": {"sim", "controller", "plant_sim", "protocol"},
     "bridge": {"bridge", "controller", "protocol"},
     "recorder": {"recorder", "bridge", "sim", "controller", "plant_sim", "protocol"},
+    "gui": {"gui", "recorder", "bridge", "sim", "controller", "plant_sim", "protocol"},
     "soak": set(PACKAGES),
 }
 

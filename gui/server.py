@@ -1,0 +1,253 @@
+"""The web side: one page (``static/index.html``) and one WebSocket per open page.
+
+Kept thin: state goes out as the pages' JSON (:meth:`gui.state.RobotState.since`, at
+:data:`SEND_RATE` per page), commands come in and go out as the bridge's queries, its reply
+going back to the page that asked. Each page has a sending loop of its own, so a slow page
+gets larger updates, and never holds the others up.
+
+Messages to the page: ``hello`` (once: live or recording, read-only or not, the arm's
+geometry), ``robots`` (the fleet, on change), ``state`` (``full`` or what is new, the
+``time`` it is at), ``reply`` (a command's answer), ``playback`` (recording: position,
+playing, speed). From the page: ``select`` (a robot), ``command`` (``name``, ``body``,
+``id``), and for a recording ``seek``, ``play``, ``speed``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import zenoh
+from starlette.applications import Starlette
+from starlette.responses import FileResponse
+from starlette.routing import Mount, Route, WebSocketRoute
+from starlette.staticfiles import StaticFiles
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from gui.live import Fleet, send_command
+from gui.recording import SPEEDS, Player, Recording
+from gui.state import Cursor, RobotState, geometry
+from protocol.config import RobotConfig
+
+log = logging.getLogger("scara.gui")
+
+STATIC = Path(__file__).resolve().parent / "static"
+SEND_RATE = 40.0
+"""Updates per second to each page at most (the bridge publishes the joints at 100 Hz). Every
+update is a frame the browser draws: without a GPU (software WebGL and compositing), two pages
+of a recording playing drew 47 frames a second each at 50 updates and took 1.3 cores of a
+2-core machine; at 40 updates, 38 frames and 1.1 cores. Still above the 30 frames a second a
+page must show (``benchmarks/bench_gui.py``)."""
+POLL = 0.002
+"""s between two looks for a change, once a page is up to date."""
+MAX_MESSAGE = 256 * 1024
+"""Bytes a page's message may take (the bridge refuses a command over 64 KiB)."""
+
+
+@dataclass
+class Gui:
+    """What every page shares: live (a Zenoh session and its fleet) or a recording."""
+
+    robot: str
+    """The robot a new page shows first."""
+    read_only: bool
+    user: str | None = None
+    session: zenoh.Session | None = None
+    fleet: Fleet | None = None
+    recording: Recording | None = None
+
+    @property
+    def robot_config(self) -> RobotConfig:
+        if self.recording is not None:
+            return self.recording.scenario.robot
+        assert self.fleet is not None
+        return self.fleet.base.robot
+
+
+class PageSocket:
+    """One open page: its robot, its cursor, its player (for a recording)."""
+
+    def __init__(self, websocket: WebSocket, gui: Gui) -> None:
+        self.websocket = websocket
+        self.gui = gui
+        self.robot = gui.robot
+        self.cursor: Cursor | None = None
+        self.player = Player(gui.recording) if gui.recording is not None else None
+        self._send_lock = asyncio.Lock()
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    async def send(self, message: dict[str, Any]) -> None:
+        async with self._send_lock:
+            await self.websocket.send_text(json.dumps(message))
+
+    async def serve(self) -> None:
+        gui = self.gui
+        hello: dict[str, Any] = {
+            "type": "hello",
+            "mode": "recording" if gui.recording is not None else "live",
+            "read_only": gui.read_only,
+            "user": gui.user,
+            "robot": self.robot,
+            "geometry": geometry(gui.robot_config),
+        }
+        if gui.recording is not None:
+            hello |= {"duration": gui.recording.duration, "speeds": SPEEDS}
+        await self.send(hello)
+        sending = asyncio.create_task(self._send_loop())
+        try:
+            while True:
+                text = await self.websocket.receive_text()
+                try:
+                    message = json.loads(text)
+                    kind = message["type"]
+                except (ValueError, KeyError, TypeError):
+                    await self.send({"type": "error", "message": "not a JSON object with a type"})
+                    continue
+                await self._on_message(kind, message)
+        except WebSocketDisconnect:
+            pass
+        finally:
+            sending.cancel()
+            for task in self._tasks:
+                task.cancel()
+
+    def _state(self) -> RobotState:
+        if self.player is not None:
+            return self.player.state
+        assert self.gui.fleet is not None
+        return self.gui.fleet.robot(self.robot)
+
+    async def _send_loop(self) -> None:
+        period = 1.0 / SEND_RATE
+        listing: list[dict[str, Any]] = []
+        last = time.monotonic()
+        sent = last - period
+        while True:
+            # a change waits for the next send (at SEND_RATE at most), not for a fixed beat:
+            # the first move after a rest goes out within POLL, not within a whole period
+            await asyncio.sleep(max(POLL, sent + period - time.monotonic()))
+            while not self._pending(listing):
+                await asyncio.sleep(POLL)
+            now = time.monotonic()
+            elapsed, last, sent = now - last, now, now
+            if self.gui.fleet is not None and (fleet := self.gui.fleet.listing()) != listing:
+                listing = fleet
+                await self.send({"type": "robots", "robots": listing})
+            if self.player is not None:
+                was_playing = self.player.playing
+                self.player.advance(elapsed)
+                if was_playing:
+                    await self.send(self._playback())
+            update, self.cursor = self._state().since(self.cursor)
+            if update is not None:
+                clock = self.player.time if self.player is not None else time.time()
+                await self.send(update | {"type": "state", "robot": self.robot, "time": clock})
+
+    def _pending(self, listing: list[dict[str, Any]]) -> bool:
+        """Something to send: the robot's state or the fleet changed, or a recording plays."""
+        if self.player is not None and self.player.playing:
+            return True
+        if self.gui.fleet is not None and self.gui.fleet.listing() != listing:
+            return True
+        return self._state().changed_since(self.cursor)
+
+    def _playback(self) -> dict[str, Any]:
+        assert self.player is not None
+        player = self.player
+        return {
+            "type": "playback",
+            "position": player.position,
+            "playing": player.playing,
+            "speed": player.speed,
+        }
+
+    async def _on_message(self, kind: str, message: dict[str, Any]) -> None:
+        if kind == "select" and self.gui.fleet is not None:
+            self.robot = str(message.get("robot", self.robot))
+            self.cursor = None  # the whole state of the robot switched to
+        elif kind == "command":
+            task = asyncio.create_task(self._command(message))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+        elif self.player is not None and kind in ("seek", "play", "speed"):
+            self._on_playback(kind, message)
+            await self.send(self._playback())
+
+    def _on_playback(self, kind: str, message: dict[str, Any]) -> None:
+        assert self.player is not None
+        value = message.get("value")
+        if kind == "seek" and isinstance(value, int | float):
+            self.player.seek(float(value))
+            self.cursor = None
+        elif kind == "play":
+            if self.player.position >= self.player.recording.duration:
+                self.player.seek(0.0)
+                self.cursor = None
+            self.player.playing = bool(value)
+        elif kind == "speed" and value in SPEEDS:
+            self.player.speed = float(value)
+
+    async def _command(self, message: dict[str, Any]) -> None:
+        """The bridge's answer to a page's command, or this server's refusal."""
+        name = str(message.get("name"))
+        answer = {"type": "reply", "id": message.get("id"), "name": name, "robot": self.robot}
+        refusal = self._refusal()
+        if refusal is not None:
+            await self.send(answer | {"error": {"error": "read_only", "message": refusal}})
+            return
+        assert self.gui.session is not None
+        try:
+            result = await asyncio.to_thread(
+                send_command, self.gui.session, self.robot, name, message.get("body")
+            )
+        except (ValueError, zenoh.ZError) as error:
+            result = {"error": {"error": "malformed", "message": str(error)}}
+        log.info("%s %s: %s", self.robot, name, result)
+        await self.send(answer | result)
+
+    def _refusal(self) -> str | None:
+        """Why this server sends no command, if it does not."""
+        if self.gui.recording is not None:
+            return "a recording takes no commands"
+        if self.gui.read_only:
+            return f"read-only: this scara-gui joined as {self.gui.user or 'a reader'}"
+        return None
+
+
+def same_origin(websocket: WebSocket) -> bool:
+    """A browser sends its page's origin with a WebSocket: only this server's own page may
+    talk to it (another site open in the browser must not command the robot)."""
+    origin = websocket.headers.get("origin")
+    if origin is None:
+        return True  # not a browser: a script has the network access anyway
+    return urlsplit(origin).netloc == websocket.headers.get("host")
+
+
+def build_app(gui: Gui) -> Starlette:
+    """The page, its files and its WebSocket."""
+
+    async def index(request: Any) -> FileResponse:
+        return FileResponse(STATIC / "index.html")
+
+    async def page_socket(websocket: WebSocket) -> None:
+        if not same_origin(websocket):
+            await websocket.close(code=1008)
+            return
+        await websocket.accept()
+        with contextlib.suppress(WebSocketDisconnect, RuntimeError):  # a page closed mid-send
+            await PageSocket(websocket, gui).serve()
+
+    return Starlette(
+        routes=[
+            Route("/", index),
+            WebSocketRoute("/ws", page_socket),
+            Mount("/static", StaticFiles(directory=STATIC), name="static"),
+        ]
+    )

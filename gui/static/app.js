@@ -1,0 +1,376 @@
+// The page: one WebSocket to scara-gui, the state it sends drawn at the browser's frame rate,
+// the typed and mouse-edited task, and the buttons that send the bridge's commands.
+"use strict";
+
+const PLOT_SECONDS = 10; // k_T and k_C over this many seconds
+const EVENTS_SHOWN = 8;
+const PLOT_PERIOD = 100; // ms between two redraws of the plot (the weights come at 10 Hz)
+const $ = (id) => document.getElementById(id);
+
+const page = {
+  socket: null,
+  hello: null,
+  robot: null,
+  latest: {}, // the latest payload of each state key
+  path: [], trace: [], events: [], plan: [],
+  time: 0,
+  draft: { waypoints: [], obstacle: null }, // the task being edited
+  edited: false, // the draft differs from the robot's task: a new task does not replace it
+  changed: true, // something to draw
+  taskChanged: true, // the draft task to draw again in 3D
+  planChanged: true, pathRestarted: true, eventsChanged: true, // to draw again, not extend
+  stats: { messages: 0, frames: 0 }, // read by the tests: updates received, frames drawn
+  commandId: 0,
+  plotted: 0, // when the plot was last drawn (ms)
+  plotStale: true,
+};
+window.scara = page;
+
+// --- the socket ---
+
+function connect() {
+  const socket = new WebSocket(`ws://${location.host}/ws`);
+  page.socket = socket;
+  socket.onmessage = (event) => onMessage(JSON.parse(event.data));
+  socket.onclose = () => {
+    $("connection").textContent = "disconnected: retrying";
+    setTimeout(connect, 1000);
+  };
+}
+
+function send(message) {
+  page.socket.send(JSON.stringify(message));
+}
+
+function onMessage(message) {
+  page.stats.messages += 1;
+  if (message.type === "hello") onHello(message);
+  else if (message.type === "robots") onRobots(message.robots);
+  else if (message.type === "state") onState(message);
+  else if (message.type === "reply") onReply(message);
+  else if (message.type === "playback") onPlayback(message);
+}
+
+function onHello(hello) {
+  const first = page.hello === null;
+  page.hello = hello;
+  page.robot = hello.robot;
+  const who = hello.mode === "recording" ? "recording" : `live as ${hello.user || "anonymous"}`;
+  $("connection").textContent = who + (hello.read_only ? " (read-only)" : "");
+  for (const button of document.querySelectorAll("[data-command]")) button.disabled = hello.read_only;
+  $("mode-choice").disabled = hello.read_only;
+  if (hello.mode === "recording") setUpPlayback(hello);
+  if (first) {
+    page.view3d = make3D(hello.geometry);
+    page.topView = new TopView($("top"), hello.geometry, page.draft, onDraftEdited);
+    page.plot = makePlot();
+    requestAnimationFrame(frame);
+  }
+}
+
+function make3D(geometry) {
+  try {
+    return new Arm3D($("view3d"), geometry);
+  } catch (error) { // no WebGL in this browser: the other panels still work
+    $("view3d").textContent = `no 3D view: ${error.message}`;
+    return null;
+  }
+}
+
+function onRobots(robots) {
+  const select = $("robot");
+  select.innerHTML = "";
+  for (const robot of robots) {
+    select.add(new Option(robot.name + (robot.online ? "" : " (offline)"), robot.name));
+  }
+  if (!robots.some((robot) => robot.name === page.robot)) {
+    select.add(new Option(`${page.robot} (not heard)`, page.robot));
+  }
+  select.value = page.robot;
+}
+
+function onState(message) {
+  if (message.robot !== page.robot) return; // sent before a switch was seen
+  // at rest the bridge still sends the same joints 100 times a second: nothing to draw again
+  const visible = message.full || message.path.length || message.events.length || message.plan
+    || Object.entries(message.latest).some(([name, value]) => !sameShown(page.latest[name], value));
+  if (message.full) {
+    Object.assign(page, { latest: {}, path: [], trace: [], events: [] });
+    page.pathRestarted = page.eventsChanged = true;
+  }
+  Object.assign(page.latest, message.latest);
+  page.path.push(...message.path);
+  if (page.path.length > PATH_CAPACITY) { // as the server keeps it: the newest points
+    page.path.splice(0, page.path.length - PATH_CAPACITY);
+    page.pathRestarted = true;
+  }
+  page.trace.push(...message.trace);
+  page.trace = page.trace.filter(([t]) => t >= message.time - PLOT_SECONDS);
+  if (message.events.length) {
+    page.events.push(...message.events);
+    page.events = page.events.slice(-EVENTS_SHOWN);
+    page.eventsChanged = true;
+  }
+  if (message.plan) {
+    page.plan = message.plan;
+    page.planChanged = true;
+  }
+  page.time = message.time;
+  if (message.latest.scenario && !page.edited) takeTask(message.latest.scenario);
+  if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
+  if (visible) page.changed = true;
+  if (message.full || message.trace.length) page.plotStale = true;
+}
+
+// Two samples of a state key the page shows alike (all but their time stamp).
+function sameShown(before, after) {
+  return before !== undefined && JSON.stringify({ ...before, t: 0 }) === JSON.stringify({ ...after, t: 0 });
+}
+
+// --- drawing, once per browser frame when something changed ---
+
+function frame(now) {
+  requestAnimationFrame(frame);
+  if (page.changed) {
+    page.changed = false;
+    drawNumbers();
+    const joints = page.latest.joints;
+    const topView = page.topView;
+    topView.joints = joints ? joints.position : null;
+    topView.path = page.path;
+    topView.plan = page.plan;
+    topView.draw();
+    if (page.view3d) {
+      if (joints) page.view3d.setJoints(joints.position);
+      page.view3d.extendLine(page.view3d.travelled, page.path, page.pathRestarted);
+      if (page.planChanged) page.view3d.setLine(page.view3d.plan, page.plan);
+      if (page.taskChanged) page.view3d.setTask(page.draft);
+    }
+    page.taskChanged = page.planChanged = page.pathRestarted = false;
+    page.stats.frames += 1;
+  }
+  if (page.plotStale && now - page.plotted >= PLOT_PERIOD) {
+    page.plotStale = false;
+    page.plotted = now;
+    drawPlot();
+  }
+  if (page.view3d) page.view3d.render();
+}
+
+const degrees = (radians) => (radians * 180 / Math.PI).toFixed(2);
+
+function drawNumbers() {
+  const { joints, tcp, coordination, status, scenario } = page.latest;
+  if (joints) {
+    const [q1, q2, d3] = joints.position, [v1, v2, v3] = joints.velocity;
+    $("theta1").textContent = `${degrees(q1)}°`;
+    $("theta2").textContent = `${degrees(q2)}°`;
+    $("d3").textContent = `${(d3 * 1000).toFixed(1)} mm`;
+    $("theta1-rate").textContent = `${degrees(v1)}°/s`;
+    $("theta2-rate").textContent = `${degrees(v2)}°/s`;
+    $("d3-rate").textContent = `${(v3 * 1000).toFixed(1)} mm/s`;
+  }
+  if (tcp) $("tcp").textContent = `${tcp.x.toFixed(3)}, ${tcp.y.toFixed(3)}, ${tcp.z.toFixed(3)} m`;
+  $("weights").textContent = coordination
+    ? `k_T ${coordination.k_t.toFixed(2)} k_C ${coordination.k_c.toFixed(2)} (${coordination.behaviour})`
+    : "";
+  if (status) {
+    for (const node of ["controller", "plant"]) {
+      const seen = status[node];
+      $(`${node}-state`).textContent = seen.alive ? seen.state : "silent";
+      $(`${node}-faults`).textContent = seen.faults.join(", ");
+      $(`${node}-faults`).className = seen.faults.length ? "fault" : "";
+    }
+    const controller = status.controller;
+    $("progress").value = controller.progress;
+    $("progress-text").textContent =
+      `${controller.progress} %, waypoints ${controller.waypoints_reached}, holds ${controller.holds}`;
+  }
+  $("task-name").textContent = scenario ? scenario.name : "no task";
+  // the task's mode is the one set; the controller's status tells it from its next run on
+  const mode = scenario ? scenario.mode : status && status.controller.mode;
+  $("mode").textContent = mode || "–";
+  if (!page.eventsChanged) return;
+  page.eventsChanged = false;
+  const list = $("events");
+  list.innerHTML = "";
+  for (const event of page.events) {
+    const item = document.createElement("li");
+    const detail = Object.entries(event.detail).map(([k, v]) => `${k}=${v}`).join(" ");
+    item.textContent = `${event.event} ${detail}`;
+    list.appendChild(item);
+  }
+}
+
+function makePlot() {
+  const dataset = (label, color) => ({ label, data: [], borderColor: color, pointRadius: 0, borderWidth: 2, stepped: true });
+  return new Chart($("plot"), {
+    type: "line",
+    data: { datasets: [dataset("k_T", "#1e88e5"), dataset("k_C", "#e53935")] },
+    options: {
+      animation: false, parsing: false, normalized: true, maintainAspectRatio: false,
+      scales: {
+        x: { type: "linear", min: -PLOT_SECONDS, max: 0, title: { display: true, text: "s" } },
+        y: { min: 0, max: 1.05 },
+      },
+      plugins: { legend: { position: "top", labels: { boxWidth: 12 } } },
+    },
+  });
+}
+
+function drawPlot() {
+  const [kT, kC] = page.plot.data.datasets;
+  const points = page.trace.map(([t, kt, kc]) => [t - page.time, kt, kc]);
+  if (points.length) { // the weights hold until they change: draw them on to now
+    const [, kt, kc] = points[points.length - 1];
+    points.push([0, kt, kc]);
+  }
+  kT.data = points.map(([x, y]) => ({ x, y }));
+  kC.data = points.map(([x, , y]) => ({ x, y }));
+  page.plot.update("none");
+}
+
+// --- the task being edited: typed inputs and the mouse share page.draft ---
+
+function takeTask(task) {
+  page.draft.waypoints = task ? task.waypoints.map((w) => ({ ...w })) : [];
+  page.draft.obstacle = task && task.obstacle ? { ...task.obstacle } : null;
+  page.edited = false;
+  page.taskChanged = true;
+  fillInputs();
+}
+
+function onDraftEdited() {
+  page.edited = true;
+  page.changed = true;
+  page.taskChanged = true;
+  fillInputs();
+}
+
+function fillInputs() {
+  const body = $("waypoints").querySelector("tbody");
+  body.innerHTML = "";
+  page.draft.waypoints.forEach((waypoint, index) => {
+    const row = body.insertRow();
+    for (const field of ["t", "x", "y", "z"]) {
+      const input = document.createElement("input");
+      Object.assign(input, { type: "number", step: field === "t" ? "0.1" : "0.005", value: waypoint[field] });
+      input.dataset.field = field;
+      input.onchange = () => { waypoint[field] = Number(input.value); onDraftEdited(); };
+      row.insertCell().appendChild(input);
+    }
+    const remove = document.createElement("button");
+    Object.assign(remove, { type: "button", textContent: "×", title: "delete this waypoint" });
+    remove.onclick = () => { page.draft.waypoints.splice(index, 1); onDraftEdited(); };
+    row.insertCell().appendChild(remove);
+  });
+  const obstacle = page.draft.obstacle;
+  $("has-obstacle").checked = obstacle !== null;
+  for (const input of $("obstacle").querySelectorAll("input")) {
+    input.disabled = obstacle === null;
+    if (obstacle) input.value = obstacle[input.dataset.field];
+  }
+}
+
+function setUpInputs() {
+  $("add-waypoint").onclick = () => {
+    const last = page.draft.waypoints[page.draft.waypoints.length - 1];
+    page.draft.waypoints.push(last ? { ...last, t: last.t + 1.5 } : { t: 0, x: 0.3, y: 0, z: 0.22 });
+    onDraftEdited();
+  };
+  $("has-obstacle").onchange = (event) => {
+    page.draft.obstacle = event.target.checked ? defaultObstacle() : null;
+    onDraftEdited();
+  };
+  for (const input of $("obstacle").querySelectorAll("input")) {
+    input.onchange = () => {
+      page.draft.obstacle[input.dataset.field] = Number(input.value);
+      onDraftEdited();
+    };
+  }
+  for (const radio of document.querySelectorAll("input[name=edit]")) {
+    radio.onchange = () => { page.topView.mode = radio.value; showHint(); };
+  }
+  $("robot").onchange = (event) => {
+    page.robot = event.target.value;
+    page.edited = false;
+    send({ type: "select", robot: page.robot });
+  };
+  showHint();
+}
+
+function showHint() {
+  const obstacle = page.topView && page.topView.mode === "obstacle";
+  $("hint").textContent = obstacle
+    ? "click: place · drag: move · wheel: size · shift+wheel: yaw"
+    : "click: add · drag: move · right click: delete";
+}
+
+// --- the buttons: each sends the bridge's command; its answer shows beside it ---
+
+function commandBody(name) {
+  if (name === "waypoints") return { waypoints: page.draft.waypoints };
+  if (name === "obstacle") return { obstacle: page.draft.obstacle };
+  if (name === "mode") return { mode: $("mode-choice").value };
+  return null;
+}
+
+function setUpButtons() {
+  for (const button of document.querySelectorAll("[data-command]")) {
+    const name = button.dataset.command;
+    button.onclick = () => {
+      showAnswer(name, "sent…", "");
+      page.commandId += 1;
+      send({ type: "command", id: page.commandId, name, body: commandBody(name) });
+    };
+  }
+}
+
+function onReply(message) {
+  if (message.reply) {
+    const reply = message.reply;
+    if (reply.accepted && (message.name === "waypoints" || message.name === "obstacle")) {
+      page.edited = false; // the robot's task is the draft now
+    }
+    showAnswer(message.name, reply.accepted ? "accepted" : refusal(reply), reply.accepted ? "accepted" : "refused");
+  } else {
+    showAnswer(message.name, refusal(message.error), "refused");
+  }
+}
+
+function refusal({ reason, error, field, message }) {
+  const where = field ? ` (${field})` : "";
+  return `refused: ${reason || error}${where}${message ? `: ${message}` : ""}`;
+}
+
+function showAnswer(name, text, kind) {
+  const answer = $(`answer-${name}`);
+  if (!answer) return;
+  answer.textContent = text;
+  answer.className = `answer ${kind}`;
+}
+
+// --- a recording: slider, play and pause, speed ---
+
+function setUpPlayback(hello) {
+  $("playback").hidden = false;
+  const slider = $("slider");
+  slider.max = hello.duration;
+  slider.oninput = () => send({ type: "seek", value: Number(slider.value) });
+  $("play").onclick = () => send({ type: "play", value: $("play").textContent === "play" });
+  const speed = $("speed");
+  speed.innerHTML = "";
+  for (const value of hello.speeds) speed.add(new Option(`${value}×`, value));
+  speed.value = 1;
+  speed.onchange = () => send({ type: "speed", value: Number(speed.value) });
+}
+
+function onPlayback(message) {
+  $("slider").value = message.position;
+  $("position").textContent = `${message.position.toFixed(2)} s`;
+  $("play").textContent = message.playing ? "pause" : "play";
+}
+
+setUpButtons();
+connect();
+addEventListener("load", setUpInputs);

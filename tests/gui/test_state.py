@@ -1,0 +1,118 @@
+"""What each page is sent (``gui/state.py``), the command line's refusals and the server's
+own refusal of a read-only page's command: no browser, no process."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+import pytest
+from robot_stack import REFERENCE
+
+from gui.cli import main
+from gui.server import Gui, PageSocket
+from gui.state import PATH_POINTS, RobotState
+from protocol.scenario import Scenario
+
+BASE = Scenario("test", (), None)
+
+
+def tcp(t: float) -> dict[str, Any]:
+    return {"t": t, "seq": 0, "x": 0.3, "y": t, "z": 0.2}
+
+
+def test_a_page_gets_everything_first_then_only_what_is_new() -> None:
+    state = RobotState(BASE)
+    state.on_sample("tcp", tcp(0.0))
+    full, cursor = state.since(None)
+    assert full is not None and full["full"] and full["path"] == [[0.3, 0.0, 0.2]]
+    assert state.since(cursor) == (None, cursor)
+    state.on_sample("tcp", tcp(1.0))
+    update, cursor = state.since(cursor)
+    assert update is not None and not update["full"]
+    assert update["path"] == [[0.3, 1.0, 0.2]] and list(update["latest"]) == ["tcp"]
+
+
+def test_a_new_run_or_a_page_that_missed_part_of_the_path_gets_it_whole() -> None:
+    state = RobotState(BASE)
+    state.on_sample("tcp", tcp(0.0))
+    _, cursor = state.since(None)
+    state.on_sample("events", {"t": 1.0, "seq": 0, "event": "run_started", "detail": {}})
+    update, cursor = state.since(cursor)
+    assert update is not None and update["full"] and update["path"] == []
+    for i in range(PATH_POINTS + 1):
+        state.on_sample("tcp", tcp(float(i)))
+    update, _ = state.since(cursor)
+    assert update is not None and update["full"] and len(update["path"]) == PATH_POINTS
+
+
+def test_an_arm_at_rest_neither_grows_the_path_nor_hides_its_joints() -> None:
+    """The bridge sends the same tool position 100 times a second at rest: the path keeps one
+    point (200 s at rest would have pushed the run's whole path out), and the joints still
+    go out as sent."""
+    state = RobotState(BASE)
+    state.on_sample("tcp", tcp(0.0))
+    _, cursor = state.since(None)
+    for t in (0.01, 0.02, 0.03):
+        state.on_sample("tcp", tcp(0.0) | {"t": t})
+        state.on_sample("joints", {"t": t, "position": [0.1, 0.2, 0.0]})
+    assert state.changed_since(cursor)
+    update, cursor = state.since(cursor)
+    assert update is not None and update["path"] == []
+    assert update["latest"]["joints"]["t"] == 0.03 and update["latest"]["tcp"]["t"] == 0.03
+    assert not state.changed_since(cursor)
+
+
+def test_a_task_comes_with_its_planned_path() -> None:
+    state = RobotState(BASE)
+    task = {"name": "t", "mode": "fuzzy", "elbow": "down", "settle_time": 1.0}
+    state.on_sample("scenario", task | {"waypoints": REFERENCE["waypoints"]})
+    update, _ = state.since(None)
+    assert update is not None
+    first, last = REFERENCE["waypoints"][0], REFERENCE["waypoints"][-1]
+    assert update["plan"][0] == pytest.approx([first["x"], first["y"], first["z"]])
+    assert update["plan"][-1] == pytest.approx([last["x"], last["y"], last["z"]])
+
+
+@pytest.mark.parametrize("host", ["0.0.0.0", "192.0.2.7"])
+def test_the_server_listens_on_loopback_unless_told(
+    host: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["--host", host]) == 2
+    assert "--host" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("content", "said"),
+    [
+        (b"", "empty"),
+        (b"\x89MCAP0\r\n" + bytes(40), "scara-record recover"),  # a writer killed early
+    ],
+)
+def test_a_file_that_is_not_a_whole_recording_is_refused_saying_why(
+    content: bytes, said: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = tmp_path / "run.mcap"
+    recording.write_bytes(content)
+    assert main([str(recording)]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("scara-gui: ") and str(recording) in error and said in error, error
+
+
+class Sent:
+    """A WebSocket that keeps what the server sends."""
+
+    def __init__(self) -> None:
+        self.sent: list[str] = []
+
+    async def send_text(self, text: str) -> None:
+        self.sent.append(text)
+
+
+def test_a_read_only_server_refuses_a_command_without_sending_it() -> None:
+    socket = Sent()
+    page = PageSocket(socket, Gui("arm1", read_only=True, user="monitor"))  # type: ignore[arg-type]
+    asyncio.run(page._command({"type": "command", "id": 3, "name": "run"}))
+    assert len(socket.sent) == 1
+    assert '"read_only"' in socket.sent[0] and "monitor" in socket.sent[0]
