@@ -184,7 +184,6 @@ def verdict(passed: bool) -> str:
 
 
 def table(delivered: dict[str, Any], without: list[float], with_: list[float]) -> str:
-    ratio = statistics.median(with_) / statistics.median(without)
     lines = [
         "| measure | result | target | |",
         "|---|---|---|---|",
@@ -203,16 +202,25 @@ def table(delivered: dict[str, Any], without: list[float], with_: list[float]) -
         f"in {delivered['task_frames']} frames), p50 / p99 "
         f"| {delivered['upload_p50_ms']:.1f} / {delivered['upload_p99_ms']:.1f} ms "
         "| reported | |",
-        f"| controller tick lateness p99 without the bridge, median of {len(without)} runs "
-        f"| {statistics.median(without):.0f} us ({', '.join(f'{v:.0f}' for v in without)}) "
-        "| reported | |",
-        f"| ... with the bridge and a subscriber, median of {len(with_)} runs "
+    ]
+    lines += lateness_rows(without, with_, "the bridge", "the bridge and a subscriber")
+    return "\n".join(lines)
+
+
+def lateness_rows(without: list[float], with_: list[float], absent: str, beside: str) -> list[str]:
+    """The rows of the controller's tick lateness p99 (us, one per run) without ``absent`` and
+    with ``beside``, and the ratio of their medians against :data:`TARGET_RATIO`."""
+    ratio = statistics.median(with_) / statistics.median(without)
+    return [
+        f"| controller tick lateness p99 without {absent}, median of "
+        f"{len(without)} runs | {statistics.median(without):.0f} us "
+        f"({', '.join(f'{v:.0f}' for v in without)}) | reported | |",
+        f"| ... with {beside}, median of {len(with_)} runs "
         f"| {statistics.median(with_):.0f} us ({', '.join(f'{v:.0f}' for v in with_)}) "
         "| reported | |",
         f"| with / without | {ratio:.2f} | <= {TARGET_RATIO:.2f} "
         f"| {verdict(ratio <= TARGET_RATIO)} |",
     ]
-    return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

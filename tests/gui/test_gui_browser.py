@@ -52,6 +52,15 @@ def wait_until_ready(robot: Robot) -> None:
     wait_until(lambda: controller_state(robot) == "ready", 10.0, "the controller to be ready")
 
 
+def page_on_reference_task(robot: Robot, open_page: Any) -> Any:
+    """The robot ready with the reference waypoints and no obstacle; a page that shows them."""
+    wait_until_ready(robot)
+    set_task(robot, None)
+    page = open_page(robot.operator_url)
+    wait_until(lambda: page.locator("#waypoints tbody tr").count() == 4, 10.0, "4 waypoints")
+    return page
+
+
 def answer(page: Any, name: str) -> str:
     return str(page.inner_text(f"#answer-{name}"))
 
@@ -107,10 +116,7 @@ def test_the_page_shows_the_arm_moving_during_a_run(
 def test_an_out_of_reach_waypoint_shows_the_bridges_reason_and_nothing_moves(
     robot: Robot, open_page: Any, tmp_path: Path
 ) -> None:
-    wait_until_ready(robot)
-    set_task(robot, None)
-    page = open_page(robot.operator_url)
-    wait_until(lambda: page.locator("#waypoints tbody tr").count() == 4, 10.0, "4 waypoints")
+    page = page_on_reference_task(robot, open_page)
     before = latest(robot.session, f"scara/{ROBOT}/joints")
     page.fill("#waypoints tbody tr:nth-child(2) input[data-field=x]", "0.9")
     page.dispatch_event("#waypoints tbody tr:nth-child(2) input[data-field=x]", "change")
@@ -202,10 +208,7 @@ def inside(obstacle: dict[str, Any], x: float, y: float, grow: float = 0.0) -> b
 def test_an_obstacle_dragged_onto_the_path_is_gone_round(
     robot: Robot, open_page: Any, tmp_path: Path
 ) -> None:
-    wait_until_ready(robot)
-    set_task(robot, None)
-    page = open_page(robot.operator_url)
-    wait_until(lambda: page.locator("#waypoints tbody tr").count() == 4, 10.0, "4 waypoints")
+    page = page_on_reference_task(robot, open_page)
     page.check("input[name=edit][value=obstacle]")
     box = page.locator("#top").bounding_box()
 
