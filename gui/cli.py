@@ -23,7 +23,13 @@ from controller.planner import load_planned
 from gui.live import Fleet
 from gui.recording import Recording
 from gui.server import MAX_MESSAGE, Gui, build_app
-from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
+from protocol.cli import (
+    add_verbosity,
+    configure_logging,
+    interruptible,
+    number,
+    quiet_on_closed_pipe,
+)
 from protocol.errors import ScaraError
 from protocol.keys import check_robot
 from protocol.scenario import Scenario
@@ -73,6 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
+    interruptible()
     try:
         host = check_host(args.host, allow_remote=args.allow_remote, name="--host")
         robot = check_robot(args.robot)
@@ -104,7 +111,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     where = f"[{host}]" if ":" in host else host
     print(f"scara-gui: http://{where}:{args.port}/ (Ctrl-C to stop)", file=sys.stderr, flush=True)
     try:
-        uvicorn.Server(config).run()
+        uvicorn.Server(config).run()  # stops serving on SIGINT, then raises it again
+    except KeyboardInterrupt:
+        print("scara-gui: stopped", file=sys.stderr)
     finally:
         if gui.fleet is not None:
             gui.fleet.close()

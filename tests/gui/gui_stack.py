@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 import urllib.request
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import zenoh
@@ -15,10 +16,10 @@ sys.path.insert(0, str(ROOT / "tests" / "bridge"))  # the bridge tests' robot as
 from robot_stack import START, Stack
 
 
-def start_gui(processes: Processes, *args: str, name: str) -> str:
+def start_gui(processes: Processes, *args: str, name: str, prefix: Sequence[str] = ()) -> str:
     """``scara-gui ARGS`` on a free port; its URL once it serves the page."""
     port = free_port()
-    gui = processes.start("gui.cli", "--port", str(port), *args, name=name)
+    gui = processes.start("gui.cli", "--port", str(port), *args, name=name, prefix=prefix)
     url = f"http://127.0.0.1:{port}/"
 
     def serves() -> bool:
