@@ -135,6 +135,7 @@ class PageSocket:
             await asyncio.sleep(max(POLL, sent + period - time.monotonic()))
             while not self._pending(listing):
                 await asyncio.sleep(POLL)
+                last = time.monotonic()  # time spent waiting is not time a recording played
             now = time.monotonic()
             elapsed, last, sent = now - last, now, now
             if self.gui.fleet is not None and (fleet := self.gui.fleet.listing()) != listing:

@@ -11,11 +11,15 @@ import pytest
 from robot_stack import REFERENCE
 
 from gui.cli import main
+from gui.recording import Recording
 from gui.server import Gui, PageSocket
 from gui.state import PATH_POINTS, RobotState
 from protocol.scenario import Scenario
 
 BASE = Scenario("test", (), None)
+PAUSED = 2.0
+"""s a recording stands paused in the test of pausing (a stall of the machine shorter than
+this cannot fail it)."""
 
 
 def tcp(t: float) -> dict[str, Any]:
@@ -116,3 +120,22 @@ def test_a_read_only_server_refuses_a_command_without_sending_it() -> None:
     asyncio.run(page._command({"type": "command", "id": 3, "name": "run"}))
     assert len(socket.sent) == 1
     assert '"read_only"' in socket.sent[0] and "monitor" in socket.sent[0]
+
+
+def test_a_recording_paused_then_played_goes_on_from_where_it_was_paused() -> None:
+    """The time a page's recording stood paused is not played when play is pressed."""
+    joints = {"t": 0.0, "seq": 0, "position": [0.0, 0.0, 0.0], "velocity": [0.0, 0.0, 0.0]}
+    recording = Recording([0.0, 60.0], [("joints", joints), ("joints", joints)], BASE)
+    page = PageSocket(Sent(), Gui("arm1", read_only=True, recording=recording))  # type: ignore[arg-type]
+
+    async def pause_then_play() -> float:
+        sending = asyncio.create_task(page._send_loop())
+        await asyncio.sleep(PAUSED)
+        assert page.player is not None and page.player.position == 0.0
+        page.player.playing = True
+        await asyncio.sleep(0.1)
+        sending.cancel()
+        return page.player.position
+
+    position = asyncio.run(pause_then_play())
+    assert 0.0 < position < PAUSED, position  # about 0.1 s played, not the pause as well
