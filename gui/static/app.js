@@ -122,9 +122,10 @@ function onState(message) {
   if (message.full || message.trace.length) page.plotStale = true;
 }
 
-// Two samples of a state key the page shows alike (all but their time stamp).
+// Two samples of a state key the page shows alike (all but their time stamp and count).
 function sameShown(before, after) {
-  return before !== undefined && JSON.stringify({ ...before, t: 0 }) === JSON.stringify({ ...after, t: 0 });
+  const shown = (sample) => JSON.stringify({ ...sample, t: 0, seq: 0 });
+  return before !== undefined && shown(before) === shown(after);
 }
 
 // --- drawing, once per browser frame when something changed ---
