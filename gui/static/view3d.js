@@ -91,7 +91,7 @@ class Arm3D {
   }
 
   // The path travelled grows at its end: only its new points are written and sent to WebGL
-  // (the whole buffer, every frame, cost more than all the rest of the page's drawing).
+  // (not the whole buffer of PATH_CAPACITY points, every frame).
   extendLine(line, points, restart) {
     const written = restart || points.length < (line.userData.written || 0) ? 0 : line.userData.written || 0;
     if (written === points.length) {
