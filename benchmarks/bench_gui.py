@@ -80,9 +80,14 @@ class Events:
         with self._lock:
             self.names.append(json.loads(sample.payload.to_bytes())["event"])
 
-    def count(self, name: str) -> int:
+    def ended(self) -> int:
+        """Runs ended so far: finished, or stopped short (a fault, a stop)."""
         with self._lock:
-            return self.names.count(name)
+            return sum(name in ("run_finished", "run_stopped") for name in self.names)
+
+    def finished(self) -> int:
+        with self._lock:
+            return self.names.count("run_finished")
 
     def close(self) -> None:
         self._subscriber.undeclare()
@@ -124,7 +129,7 @@ def gui_run(browser: Any, port: int, session: zenoh.Session, events: Events) -> 
                 page.goto(url)
                 page.wait_for_function("window.scara.latest.joints !== undefined", timeout=30e3)
             time.sleep(0.5)  # both pages settled on the arm at rest
-            finished = events.count("run_finished")
+            ended = events.ended()
             pages[0].evaluate(PRESS_RUN)
             page = pages[0]
             page.wait_for_function("window.bench.moved !== null", timeout=30e3)
@@ -132,7 +137,7 @@ def gui_run(browser: Any, port: int, session: zenoh.Session, events: Events) -> 
             before = [p.evaluate(COUNTS) for p in pages]
             time.sleep(MEASURED)
             after = [p.evaluate(COUNTS) for p in pages]
-            wait_for(lambda: events.count("run_finished") > finished, 60.0, "the run's end")
+            wait_for(lambda: events.ended() > ended, 60.0, "the run's end")
         finally:
             for page in pages:
                 page.close()
@@ -150,11 +155,11 @@ def gui_run(browser: Any, port: int, session: zenoh.Session, events: Events) -> 
 
 def plain_run(session: zenoh.Session, events: Events) -> None:
     """One run started by a Zenoh query, no GUI anywhere."""
-    finished = events.count("run_finished")
+    ended = events.ended()
     reply = query(session, command_key(ROBOT, "run"))
     if not (reply and reply["accepted"]):
         raise SystemExit(f"run refused: {reply}")
-    wait_for(lambda: events.count("run_finished") > finished, 60.0, "the run's end")
+    wait_for(lambda: events.ended() > ended, 60.0, "the run's end")
 
 
 def measure(runs: int, priority: int | None) -> dict[str, Any]:
@@ -191,10 +196,11 @@ def measure(runs: int, priority: int | None) -> dict[str, Any]:
                 else:
                     plain_run(session, events)
                     without.append(lateness_p99(out))
+            finished = events.finished()
             events.close()
             session.close()  # type: ignore[no-untyped-call]
             browser.close()
-    return {"with_gui": with_gui, "lateness_without_us": without}
+    return {"with_gui": with_gui, "lateness_without_us": without, "runs_finished": finished}
 
 
 def table(numbers: dict[str, Any]) -> str:
@@ -217,6 +223,12 @@ def table(numbers: dict[str, Any]) -> str:
         f"| p99 < {TARGET_FIRST_MOVE_MS:g} ms | {verdict(p99 < TARGET_FIRST_MOVE_MS)} |",
     ]
     lines += lateness_rows(without, with_, "the GUI", "scara-gui and two pages open")
+    total = len(runs) + len(without)
+    finished = numbers["runs_finished"]
+    lines.append(
+        f"| runs finished (the others stopped short: a fault) | {finished} of {total} "
+        f"| all | {verdict(finished == total)} |"
+    )
     return "\n".join(lines)
 
 
