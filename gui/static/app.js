@@ -91,12 +91,17 @@ function onRobots(robots) {
 
 function onState(message) {
   if (message.robot !== page.robot) return; // sent before a switch was seen
-  // at rest the bridge still sends the same joints 100 times a second: nothing to draw again
-  const visible = message.full || message.path.length || message.events.length || message.plan
-    || Object.entries(message.latest).some(([name, value]) => !sameShown(page.latest[name], value));
+  // the server sends a key again only when it shows something new (gui/state.py); an update
+  // of the plot's weights alone has nothing else to draw again
+  const visible = message.full || message.restarted || message.path.length
+    || message.events.length || message.plan || Object.keys(message.latest).length > 0;
   if (message.full) {
     Object.assign(page, { latest: {}, path: [], trace: [], events: [] });
     page.pathRestarted = page.eventsChanged = true;
+  }
+  if (message.restarted) { // a run started: its path is sent whole, nothing else is
+    page.path = [];
+    page.pathRestarted = true;
   }
   Object.assign(page.latest, message.latest);
   page.path.push(...message.path);
@@ -120,12 +125,6 @@ function onState(message) {
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
   if (visible) page.changed = true;
   if (message.full || message.trace.length) page.plotStale = true;
-}
-
-// Two samples of a state key the page shows alike (all but their time stamp and count).
-function sameShown(before, after) {
-  const shown = (sample) => JSON.stringify({ ...sample, t: 0, seq: 0 });
-  return before !== undefined && shown(before) === shown(after);
 }
 
 // --- drawing, once per browser frame when something changed ---
@@ -158,39 +157,46 @@ function frame(now) {
   if (page.view3d) page.view3d.render();
 }
 
+// A text written only when it changed: the same text written again still costs the browser a
+// layout and a paint of its panel, every frame.
+function show(id, text) {
+  const element = $(id);
+  if (element.textContent !== text) element.textContent = text;
+}
+
 const degrees = (radians) => (radians * 180 / Math.PI).toFixed(2);
 
 function drawNumbers() {
   const { joints, tcp, coordination, status, scenario } = page.latest;
   if (joints) {
     const [q1, q2, d3] = joints.position, [v1, v2, v3] = joints.velocity;
-    $("theta1").textContent = `${degrees(q1)}°`;
-    $("theta2").textContent = `${degrees(q2)}°`;
-    $("d3").textContent = `${(d3 * 1000).toFixed(1)} mm`;
-    $("theta1-rate").textContent = `${degrees(v1)}°/s`;
-    $("theta2-rate").textContent = `${degrees(v2)}°/s`;
-    $("d3-rate").textContent = `${(v3 * 1000).toFixed(1)} mm/s`;
+    show("theta1", `${degrees(q1)}°`);
+    show("theta2", `${degrees(q2)}°`);
+    show("d3", `${(d3 * 1000).toFixed(1)} mm`);
+    show("theta1-rate", `${degrees(v1)}°/s`);
+    show("theta2-rate", `${degrees(v2)}°/s`);
+    show("d3-rate", `${(v3 * 1000).toFixed(1)} mm/s`);
   }
-  if (tcp) $("tcp").textContent = `${tcp.x.toFixed(3)}, ${tcp.y.toFixed(3)}, ${tcp.z.toFixed(3)} m`;
-  $("weights").textContent = coordination
+  if (tcp) show("tcp", `${tcp.x.toFixed(3)}, ${tcp.y.toFixed(3)}, ${tcp.z.toFixed(3)} m`);
+  show("weights", coordination
     ? `k_T ${coordination.k_t.toFixed(2)} k_C ${coordination.k_c.toFixed(2)} (${coordination.behaviour})`
-    : "";
+    : "");
   if (status) {
     for (const node of ["controller", "plant"]) {
       const seen = status[node];
-      $(`${node}-state`).textContent = seen.alive ? seen.state : "silent";
-      $(`${node}-faults`).textContent = seen.faults.join(", ");
-      $(`${node}-faults`).className = seen.faults.length ? "fault" : "";
+      show(`${node}-state`, seen.alive ? seen.state : "silent");
+      show(`${node}-faults`, seen.faults.join(", "));
+      $(`${node}-faults`).classList.toggle("fault", seen.faults.length > 0);
     }
     const controller = status.controller;
-    $("progress").value = controller.progress;
-    $("progress-text").textContent =
-      `${controller.progress} %, waypoints ${controller.waypoints_reached}, holds ${controller.holds}`;
+    if ($("progress").value !== controller.progress) $("progress").value = controller.progress;
+    show("progress-text",
+      `${controller.progress} %, waypoints ${controller.waypoints_reached}, holds ${controller.holds}`);
   }
-  $("task-name").textContent = scenario ? scenario.name : "no task";
+  show("task-name", scenario ? scenario.name : "no task");
   // the task's mode is the one set; the controller's status tells it from its next run on
   const mode = scenario ? scenario.mode : status && status.controller.mode;
-  $("mode").textContent = mode || "–";
+  show("mode", mode || "–");
   if (!page.eventsChanged) return;
   page.eventsChanged = false;
   const list = $("events");

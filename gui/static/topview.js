@@ -9,7 +9,8 @@ const GRAB_PIXELS = 9; // how near a waypoint a press takes it
 class TopView {
   constructor(canvas, geometry, draft, onEdit) {
     this.canvas = canvas;
-    this.context = canvas.getContext("2d");
+    // opaque: the background is filled, and the compositor copies an opaque canvas unblended
+    this.context = canvas.getContext("2d", { alpha: false });
     this.geometry = geometry;
     this.draft = draft; // {waypoints: [...], obstacle: {...} | null}, shared with the inputs
     this.onEdit = onEdit;
@@ -130,7 +131,8 @@ class TopView {
   draw() {
     const c = this.context, g = this.geometry;
     const size = this.size, scale = size / 2 / this.span;
-    c.clearRect(0, 0, size, size);
+    c.fillStyle = "#ffffff";
+    c.fillRect(0, 0, size, size);
     const [cx, cy] = this.toScreen(0, 0);
     c.fillStyle = "#e8f5e9";
     c.beginPath();

@@ -3,12 +3,30 @@
 "use strict";
 
 const PATH_CAPACITY = 20000; // points of the path travelled, as the server keeps (gui/state.py)
+const SOFTWARE_WEBGL = /SwiftShader|llvmpipe|softpipe|software/i;
+
+// How this browser draws the 3D view: "webgl" where its WebGL has a GPU; "canvas" (Canvas 2D,
+// canvas3d.js) where WebGL would be rasterised in software, or where the page's address asks
+// for it (?view3d=canvas or ?view3d=webgl).
+function chooseRenderer() {
+  const asked = new URLSearchParams(location.search).get("view3d");
+  if (asked === "webgl" || asked === "canvas") return asked;
+  const gl = document.createElement("canvas").getContext("webgl");
+  if (!gl) return "canvas";
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  const name = info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : "";
+  const lose = gl.getExtension("WEBGL_lose_context");
+  if (lose) lose.loseContext(); // a context held for nothing counts against the browser's few
+  return SOFTWARE_WEBGL.test(name) ? "canvas" : "webgl";
+}
 
 class Arm3D {
   constructor(container, geometry) {
     this.geometry = geometry;
-    // no antialiasing: without a GPU (software WebGL) it multiplies the cost of every frame
-    this.renderer = new THREE.WebGLRenderer({ antialias: false });
+    this.kind = chooseRenderer();
+    this.renderer = this.kind === "webgl"
+      ? new THREE.WebGLRenderer({ antialias: true })
+      : new CanvasSceneRenderer();
     this.renderer.setPixelRatio(window.devicePixelRatio);
     this.renderer.setClearColor(0xf7f9fa);
     container.appendChild(this.renderer.domElement);
@@ -26,6 +44,7 @@ class Arm3D {
     this.scene.add(sun);
     const grid = new THREE.GridHelper(1.4, 14, 0xb0bec5, 0xdde3e6);
     grid.rotation.x = Math.PI / 2;
+    grid.renderOrder = -1; // the floor, under everything
     this.scene.add(grid);
     this.buildArm();
     this.plan = this.line(0x1e88e5, 2);
@@ -41,7 +60,7 @@ class Arm3D {
   buildArm() {
     const g = this.geometry;
     const metal = (color) => new THREE.MeshLambertMaterial({ color });
-    const column = new THREE.Mesh(new THREE.CylinderGeometry(0.045, 0.06, g.d0, 24), metal(0x607d8b));
+    const column = new THREE.Mesh(new THREE.CylinderGeometry(0.045, 0.06, g.d0, 16), metal(0x607d8b));
     column.rotation.x = Math.PI / 2;
     column.position.z = g.d0 / 2;
     this.scene.add(column);
@@ -58,10 +77,10 @@ class Arm3D {
     link2.position.set(g.a2 / 2, 0, 0);
     this.elbow.add(link2);
     this.quillLength = g.d3_max + 0.12;
-    this.quill = new THREE.Mesh(new THREE.CylinderGeometry(0.012, 0.012, this.quillLength, 16), metal(0x90a4ae));
+    this.quill = new THREE.Mesh(new THREE.CylinderGeometry(0.012, 0.012, this.quillLength, 8), metal(0x90a4ae));
     this.quill.rotation.x = Math.PI / 2;
     this.elbow.add(this.quill);
-    this.tip = new THREE.Mesh(new THREE.SphereGeometry(0.014, 16, 12), metal(0xd32f2f));
+    this.tip = new THREE.Mesh(new THREE.SphereGeometry(0.014, 8, 6), metal(0xd32f2f));
     this.elbow.add(this.tip);
     this.setJoints([0, 0, 0]);
   }
@@ -124,24 +143,25 @@ class Arm3D {
       while (group.children.length) group.remove(group.children[0]); // r111 has no clear()
     }
     for (const w of (task && task.waypoints) || []) {
-      const dot = new THREE.Mesh(new THREE.SphereGeometry(0.008, 12, 8), new THREE.MeshBasicMaterial({ color: 0x1565c0 }));
+      const dot = new THREE.Mesh(new THREE.SphereGeometry(0.008, 8, 6), new THREE.MeshBasicMaterial({ color: 0x1565c0 }));
       dot.position.set(w.x, w.y, w.z);
       this.waypoints.add(dot);
     }
     const o = task && task.obstacle;
     if (o) {
       const grow = o.tool_radius + o.margin;
-      const cylinder = (a, b, material) => {
-        const mesh = new THREE.Mesh(new THREE.CylinderGeometry(1, 1, 1, 48), material);
-        mesh.rotation.x = Math.PI / 2;
-        mesh.scale.set(a, o.height, b);
-        mesh.position.z = o.height / 2;
-        return mesh;
+      const cylinder = (a, b, object) => { // a unit cylinder stretched to the ellipse
+        object.rotation.x = Math.PI / 2;
+        object.scale.set(a, o.height, b);
+        object.position.z = o.height / 2;
+        return object;
       };
+      const unit = new THREE.CylinderGeometry(1, 1, 1, 32);
       this.obstacle.add(cylinder(o.long_diameter / 2, o.short_diameter / 2,
-        new THREE.MeshLambertMaterial({ color: 0x8d6e63 })));
+        new THREE.Mesh(unit, new THREE.MeshLambertMaterial({ color: 0x8d6e63 }))));
       this.obstacle.add(cylinder(o.long_diameter / 2 + grow, o.short_diameter / 2 + grow,
-        new THREE.MeshBasicMaterial({ color: 0xc62828, wireframe: true, transparent: true, opacity: 0.35 })));
+        new THREE.LineSegments(new THREE.EdgesGeometry(unit),
+          new THREE.LineBasicMaterial({ color: 0xc62828, transparent: true, opacity: 0.5 }))));
       this.obstacle.position.set(o.x, o.y, 0);
       this.obstacle.rotation.z = o.yaw_deg * Math.PI / 180;
     }

@@ -92,11 +92,36 @@ class TcpLog:
             subscriber.undeclare()
 
 
-def test_the_page_shows_the_arm_moving_during_a_run(
-    robot: Robot, open_page: Any, tmp_path: Path
+def webgl_renderer(page: Any) -> str:
+    """The name of the browser's WebGL renderer ('' if it has no WebGL)."""
+    return str(
+        page.evaluate(
+            """() => {
+              const gl = document.createElement("canvas").getContext("webgl");
+              const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+              return info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : "";
+            }"""
+        )
+    )
+
+
+def test_where_webgl_runs_in_software_the_3d_view_is_drawn_with_canvas_2d(
+    robot: Robot, open_page: Any
 ) -> None:
-    set_task(robot, REFERENCE["obstacle"])
     page = open_page(robot.operator_url)
+    if "SwiftShader" not in webgl_renderer(page):
+        pytest.skip(f"this browser's WebGL is not SwiftShader: {webgl_renderer(page)!r}")
+    assert page.evaluate("window.scara.view3d.kind") == "canvas"
+
+
+@pytest.mark.parametrize("renderer", ["canvas", "webgl"])
+def test_the_page_shows_the_arm_moving_during_a_run(
+    robot: Robot, open_page: Any, tmp_path: Path, renderer: str
+) -> None:
+    """With either way of drawing the 3D view (the page's address can ask for one)."""
+    set_task(robot, REFERENCE["obstacle"])
+    page = open_page(f"{robot.operator_url}?view3d={renderer}")
+    assert page.evaluate("window.scara.view3d.kind") == renderer
     wait_until(lambda: page.locator("#waypoints tbody tr").count() == 4, 10.0, "4 waypoints")
     page.screenshot(path=tmp_path / "before.png")
     theta1, before = page.inner_text("#theta1"), canvas(page)
