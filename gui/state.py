@@ -33,6 +33,8 @@ PLAN_STEP = 0.02
 """s between two points of the planned path sent to the page."""
 RESTART_EVENTS = ("run_started", "reset")
 """Events after which the path travelled starts again."""
+STAMPS = ("t", "seq")
+"""Fields of a sample that do not show: two samples alike but for these are a repeat."""
 
 
 def geometry(robot: RobotConfig) -> dict[str, float]:
@@ -102,6 +104,13 @@ class Numbered:
         return [item for position, item in enumerate(self.items) if position >= skip]
 
 
+def _alike(first: dict[str, Any], second: dict[str, Any]) -> bool:
+    """Whether two samples of a key differ at most by their :data:`STAMPS`."""
+    return first.keys() == second.keys() and all(
+        first[field] == second[field] for field in first if field not in STAMPS
+    )
+
+
 class RobotState:
     """One robot as the pages see it (see the module docstring)."""
 
@@ -121,9 +130,11 @@ class RobotState:
         """One state key's sample (``joints``, ``tcp`` ..., ``scenario``)."""
         plan = planned_path(payload, self.base) if name == "scenario" else None
         with self._lock:
-            self._version += 1
+            previous = self._latest.get(name)
             self._latest[name] = payload
-            self._changed[name] = self._version
+            if previous is None or not _alike(previous, payload):  # a repeat: nothing to send
+                self._version += 1
+                self._changed[name] = self._version
             if plan is not None:
                 self._plan = plan
             if name == "tcp":
@@ -149,18 +160,22 @@ class RobotState:
         return Cursor(self._epoch, self._path.end, self._trace.end, self._events.end, self._version)
 
     def since(self, cursor: Cursor | None) -> tuple[dict[str, Any] | None, Cursor]:
-        """What is new for a page at ``cursor`` (``full`` the whole state when it has none,
-        or missed part of the path), None if nothing is; and its new cursor."""
+        """What is new for a page at ``cursor``, None if nothing is; and its new cursor.
+
+        ``full``: the whole state, for a page with no cursor or one that missed part of the
+        path. ``restarted``: a run started (or a reset) since the page's look: the path it
+        is sent is the new one, whole; the rest is only what changed. A new run is not sent
+        whole: the page would redraw its whole task just as the arm starts to move."""
         with self._lock:
             now = self._cursor()
             if cursor is not None and cursor == now:
                 return None, now
-            full = (
-                cursor is None or cursor.epoch != self._epoch or cursor.path_end < self._path.start
-            )
-            if full or cursor is None:
+            if cursor is None or (
+                cursor.epoch == self._epoch and cursor.path_end < self._path.start
+            ):
                 update = {
                     "full": True,
+                    "restarted": False,
                     "latest": dict(self._latest),
                     "path": list(self._path.items),
                     "trace": list(self._trace.items),
@@ -168,6 +183,7 @@ class RobotState:
                     "plan": self._plan,
                 }
                 return update, now
+            restarted = cursor.epoch != self._epoch
             latest = {
                 name: self._latest[name]
                 for name, version in self._changed.items()
@@ -175,8 +191,9 @@ class RobotState:
             }
             update = {
                 "full": False,
+                "restarted": restarted,
                 "latest": latest,
-                "path": self._path.after(cursor.path_end),
+                "path": list(self._path.items) if restarted else self._path.after(cursor.path_end),
                 "trace": self._trace.after(cursor.trace_end),
                 "events": self._events.after(cursor.events_end),
             }

@@ -38,34 +38,52 @@ def test_a_page_gets_everything_first_then_only_what_is_new() -> None:
     assert update["path"] == [[0.3, 1.0, 0.2]] and list(update["latest"]) == ["tcp"]
 
 
-def test_a_new_run_or_a_page_that_missed_part_of_the_path_gets_it_whole() -> None:
+def test_a_new_run_sends_its_path_whole_and_the_rest_only_as_it_changes() -> None:
+    """Not the whole state: the page would rebuild its task just as the arm starts to move."""
+    state = RobotState(BASE)
+    state.on_sample("tcp", tcp(0.0))
+    state.on_sample("scenario", {"t": 0.0, "seq": 0, "name": "task"})
+    _, cursor = state.since(None)
+    state.on_sample("events", {"t": 1.0, "seq": 0, "event": "run_started", "detail": {}})
+    state.on_sample("tcp", tcp(1.0))
+    update, cursor = state.since(cursor)
+    assert update is not None and not update["full"] and update["restarted"]
+    assert update["path"] == [[0.3, 1.0, 0.2]] and set(update["latest"]) == {"events", "tcp"}
+    assert [event["event"] for event in update["events"]] == ["run_started"]
+    state.on_sample("tcp", tcp(2.0))
+    update, _ = state.since(cursor)
+    assert update is not None and not update["restarted"] and update["path"] == [[0.3, 2.0, 0.2]]
+
+
+def test_a_page_that_missed_part_of_the_path_gets_it_whole() -> None:
     state = RobotState(BASE)
     state.on_sample("tcp", tcp(0.0))
     _, cursor = state.since(None)
-    state.on_sample("events", {"t": 1.0, "seq": 0, "event": "run_started", "detail": {}})
-    update, cursor = state.since(cursor)
-    assert update is not None and update["full"] and update["path"] == []
-    for i in range(PATH_POINTS + 1):
+    for i in range(1, PATH_POINTS + 2):
         state.on_sample("tcp", tcp(float(i)))
     update, _ = state.since(cursor)
     assert update is not None and update["full"] and len(update["path"]) == PATH_POINTS
 
 
-def test_an_arm_at_rest_neither_grows_the_path_nor_hides_its_joints() -> None:
-    """The bridge sends the same tool position 100 times a second at rest: the path keeps one
-    point (200 s at rest would have pushed the run's whole path out), and the joints still
-    go out as sent."""
+def test_an_arm_at_rest_neither_grows_the_path_nor_is_sent_again() -> None:
+    """The bridge sends the same tool position and joints 100 times a second at rest: the
+    path keeps one point (200 s at rest would have pushed the run's whole path out), and a
+    sample that differs from the last only by its time stamp and count is not sent again (a
+    page has nothing new to draw); the first one and any real change are."""
     state = RobotState(BASE)
     state.on_sample("tcp", tcp(0.0))
+    state.on_sample("joints", {"t": 0.0, "seq": 0, "position": [0.1, 0.2, 0.0]})
     _, cursor = state.since(None)
-    for t in (0.01, 0.02, 0.03):
-        state.on_sample("tcp", tcp(0.0) | {"t": t})
-        state.on_sample("joints", {"t": t, "position": [0.1, 0.2, 0.0]})
-    assert state.changed_since(cursor)
-    update, cursor = state.since(cursor)
-    assert update is not None and update["path"] == []
-    assert update["latest"]["joints"]["t"] == 0.03 and update["latest"]["tcp"]["t"] == 0.03
+    for seq, t in enumerate((0.01, 0.02, 0.03), start=1):
+        state.on_sample("tcp", tcp(0.0) | {"t": t, "seq": seq})
+        state.on_sample("joints", {"t": t, "seq": seq, "position": [0.1, 0.2, 0.0]})
     assert not state.changed_since(cursor)
+    assert state.since(cursor) == (None, cursor)
+    state.on_sample("joints", {"t": 0.04, "seq": 4, "position": [0.1, 0.2001, 0.0]})
+    update, cursor = state.since(cursor)
+    assert update is not None and update["path"] == [] and list(update["latest"]) == ["joints"]
+    assert update["latest"]["joints"]["t"] == 0.04
+    assert state.latest("tcp") == tcp(0.0) | {"t": 0.03, "seq": 3}  # kept, not sent
 
 
 def test_a_task_comes_with_its_planned_path() -> None:
