@@ -50,6 +50,9 @@ TARGET_FPS = 30.0
 TARGET_FIRST_MOVE_MS = 100.0
 MEASURED = 3.0
 """s of each run over which the pages' frames are counted (the reference run lasts 6.6 s)."""
+SETTLE = 1.0
+"""s left after the pages close and scara-gui stops, before a run without them: a run
+without the GUI is not to be measured beside a browser still tearing two pages down."""
 
 PRESS_RUN = """() => {
   const page = window.scara;
@@ -193,6 +196,7 @@ def measure(runs: int, priority: int | None) -> dict[str, Any]:
                 if index % 2:
                     with_gui.append(gui_run(browser, port, session, events))
                     with_gui[-1]["lateness_p99_us"] = lateness_p99(out)
+                    time.sleep(SETTLE)
                 else:
                     plain_run(session, events)
                     without.append(lateness_p99(out))
