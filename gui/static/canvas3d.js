@@ -4,9 +4,9 @@
 // read back for the compositor while the page waits, which cost two pages more than half a core
 // and held each frame up. Drawing a few hundred flat faces with Canvas 2D costs a fraction of it.
 //
-// It draws what view3d.js builds and nothing more: meshes of THREE.Geometry (Lambert or Basic
-// materials, solid or wireframe, opaque or transparent), THREE.Line and THREE.LineSegments of
-// BufferGeometry (their draw range, one colour or per-vertex colours), a hemisphere light and
+// It draws what view3d.js builds and nothing more: meshes of THREE.Geometry (their front faces,
+// Lambert or Basic materials), THREE.Line and THREE.LineSegments of BufferGeometry (their draw
+// range, one colour or per-vertex colours, opaque or transparent), a hemisphere light and
 // directional lights. Faces crossing the camera's near plane are left out, not clipped.
 "use strict";
 
@@ -136,7 +136,6 @@ class CanvasSceneRenderer {
       this.project(this.world[i], this.screen[i]);
     });
     const lambert = material.isMeshLambertMaterial;
-    const alpha = material.transparent ? material.opacity : 1;
     const normal = new THREE.Vector3(), edge = new THREE.Vector3(), toCamera = new THREE.Vector3();
     for (const face of geometry.faces) {
       const a = this.screen[face.a], b = this.screen[face.b], c = this.screen[face.c];
@@ -144,15 +143,12 @@ class CanvasSceneRenderer {
       const wa = this.world[face.a];
       normal.subVectors(this.world[face.c], this.world[face.b])
         .cross(edge.subVectors(wa, this.world[face.b])).normalize();
-      const facing = normal.dot(toCamera.subVectors(this.cameraPosition, wa)) > 0;
-      if (!facing && !material.wireframe && material.side !== THREE.DoubleSide) continue;
-      const color = lambert ? this.lit(material.color, facing ? normal : normal.negate()) : material.color;
-      const style = cssColor(color, alpha);
+      if (normal.dot(toCamera.subVectors(this.cameraPosition, wa)) <= 0) continue; // its back
       const points = [a.x, a.y, b.x, b.y, c.x, c.y];
-      if (!material.wireframe) grow(points);
+      grow(points);
       this.elements.push({
-        depth: (a.w + b.w + c.w) / 3, order: mesh.renderOrder, style, points,
-        fill: !material.wireframe, width: 1, closed: true,
+        depth: (a.w + b.w + c.w) / 3, order: mesh.renderOrder, points, fill: true, closed: true,
+        style: cssColor(lambert ? this.lit(material.color, normal) : material.color, 1),
       });
     }
   }
@@ -188,7 +184,8 @@ class CanvasSceneRenderer {
       }
       return;
     }
-    for (let start = 0; start + 1 < count; start += LINE_RUN) { // runs share their end points
+    // runs share their end points; drawn 2 px wide, to be seen over the faces' edges
+    for (let start = 0; start + 1 < count; start += LINE_RUN) {
       this.addRun(line, screen.slice(start, start + LINE_RUN + 1), material.color, 2 * width);
     }
   }
