@@ -109,8 +109,9 @@ def test_where_webgl_runs_in_software_the_3d_view_is_drawn_with_canvas_2d(
     robot: Robot, open_page: Any
 ) -> None:
     page = open_page(robot.operator_url)
-    if "SwiftShader" not in webgl_renderer(page):
-        pytest.skip(f"this browser's WebGL is not SwiftShader: {webgl_renderer(page)!r}")
+    renderer = webgl_renderer(page)
+    if "SwiftShader" not in renderer:
+        pytest.skip(f"this browser's WebGL is not SwiftShader: {renderer!r}")
     assert page.evaluate("window.scara.view3d.kind") == "canvas"
 
 
