@@ -173,7 +173,7 @@ def measure(runs: int, priority: int | None) -> dict[str, Any]:
     with router() as port, tempfile.TemporaryDirectory() as folder:
         out = Path(folder)
         stack = [
-            node("plant_sim.node", *bus_args(port)),
+            node("plant_sim.node", *realtime, *bus_args(port)),
             node("controller.cli", "--out", str(out), *realtime, *bus_args(port)),
             node("bridge.node", "--zenoh-port", str(port), *bus_args(port)),
         ]
@@ -245,8 +245,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--realtime-priority",
         type=int,
         metavar="N",
-        help="run the controller under SCHED_FIFO at priority N, in both kinds of runs "
-        "(default: normal scheduling, as scara-run starts it)",
+        help="run the plant and the controller under SCHED_FIFO at priority N, as "
+        "scara-run --realtime-priority N does, in both kinds of runs (default: normal "
+        "scheduling, as scara-run starts them)",
     )
     parser.add_argument("--json", type=Path, help="also write the numbers as JSON here")
     args = parser.parse_args(argv)
