@@ -45,10 +45,39 @@ update is a frame the browser draws: without a GPU (software WebGL and compositi
 of a recording playing drew 47 frames a second each at 50 updates and took 1.3 cores of a
 2-core machine; at 40 updates, 38 frames and 1.1 cores. Still above the 30 frames a second a
 page must show (``benchmarks/bench_gui.py``)."""
+BURST = 2
+"""Updates that may go back to back after a pause: the arm's first move after a rest goes
+out at once even when the status's change (running) went out just before it (at one update
+per period, it waited up to a period), and over a run the pages still get SEND_RATE."""
 POLL = 0.002
 """s between two looks for a change, once a page is up to date."""
 MAX_MESSAGE = 256 * 1024
 """Bytes a page's message may take (the bridge refuses a command over 64 KiB)."""
+
+
+class SendBudget:
+    """When a page's next update may go: a token bucket, ``rate`` a second over time and
+    ``burst`` back to back after a pause. The clock is the caller's."""
+
+    def __init__(self, rate: float, burst: int, now: float) -> None:
+        self.rate = rate
+        self.burst = float(burst)
+        self._tokens = self.burst
+        self._at = now
+
+    def wait(self, now: float) -> float:
+        """s until an update may go (0: it may go now)."""
+        self._refill(now)
+        return max(0.0, (1.0 - self._tokens) / self.rate)
+
+    def spend(self, now: float) -> None:
+        """An update went at ``now``."""
+        self._refill(now)
+        self._tokens -= 1.0
+
+    def _refill(self, now: float) -> None:
+        self._tokens = min(self.burst, self._tokens + (now - self._at) * self.rate)
+        self._at = now
 
 
 @dataclass
@@ -125,19 +154,19 @@ class PageSocket:
         return self.gui.fleet.robot(self.robot)
 
     async def _send_loop(self) -> None:
-        period = 1.0 / SEND_RATE
         listing: list[dict[str, Any]] = []
         last = time.monotonic()
-        sent = last - period
+        budget = SendBudget(SEND_RATE, BURST, last)
         while True:
-            # a change waits for the next send (at SEND_RATE at most), not for a fixed beat:
-            # the first move after a rest goes out within POLL, not within a whole period
-            await asyncio.sleep(max(POLL, sent + period - time.monotonic()))
             while not self._pending(listing):
                 await asyncio.sleep(POLL)
                 last = time.monotonic()  # time spent waiting is not time a recording played
             now = time.monotonic()
-            elapsed, last, sent = now - last, now, now
+            if wait := budget.wait(now):
+                await asyncio.sleep(wait)
+                continue
+            budget.spend(now)
+            elapsed, last = now - last, now
             if self.gui.fleet is not None and (fleet := self.gui.fleet.listing()) != listing:
                 listing = fleet
                 await self.send({"type": "robots", "robots": listing})

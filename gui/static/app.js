@@ -23,6 +23,8 @@ const page = {
   commandId: 0,
   plotted: 0, // when the plot was last drawn (ms)
   plotStale: true,
+  framePending: false, // a browser frame is asked for
+  plotTimer: null, // the plot's next turn is waited for
 };
 window.scara = page;
 
@@ -64,13 +66,13 @@ function onHello(hello) {
     page.view3d = make3D(hello.geometry);
     page.topView = new TopView($("top"), hello.geometry, page.draft, onDraftEdited);
     page.plot = makePlot();
-    requestAnimationFrame(frame);
+    requestFrame();
   }
 }
 
 function make3D(geometry) {
   try {
-    return new Arm3D($("view3d"), geometry);
+    return new Arm3D($("view3d"), geometry, requestFrame);
   } catch (error) { // no WebGL in this browser: the other panels still work
     $("view3d").textContent = `no 3D view: ${error.message}`;
     return null;
@@ -125,12 +127,21 @@ function onState(message) {
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
   if (visible) page.changed = true;
   if (message.full || message.trace.length) page.plotStale = true;
+  if (page.changed || page.plotStale) requestFrame();
 }
 
-// --- drawing, once per browser frame when something changed ---
+// --- drawing, in a browser frame asked for when something changed ---
+
+// A page that asked for every browser frame cost the browser a frame's work 60 times a
+// second, at rest too: with two pages open, that was CPU the robot's first move waited for.
+function requestFrame() {
+  if (page.framePending) return;
+  page.framePending = true;
+  requestAnimationFrame(frame);
+}
 
 function frame(now) {
-  requestAnimationFrame(frame);
+  page.framePending = false;
   if (page.changed) {
     page.changed = false;
     drawNumbers();
@@ -153,6 +164,9 @@ function frame(now) {
     page.plotStale = false;
     page.plotted = now;
     drawPlot();
+  } else if (page.plotStale && page.plotTimer === null) { // its turn comes without an update
+    page.plotTimer = setTimeout(() => { page.plotTimer = null; requestFrame(); },
+      page.plotted + PLOT_PERIOD - now);
   }
   if (page.view3d) page.view3d.render();
 }
@@ -252,6 +266,7 @@ function onDraftEdited() {
   page.changed = true;
   page.taskChanged = true;
   fillInputs();
+  requestFrame();
 }
 
 function fillInputs() {

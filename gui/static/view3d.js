@@ -21,8 +21,11 @@ function chooseRenderer() {
 }
 
 class Arm3D {
-  constructor(container, geometry) {
+  // requestFrame: asks the page for a frame, when the view changed by itself (turned by the
+  // mouse, resized)
+  constructor(container, geometry, requestFrame) {
     this.geometry = geometry;
+    this.requestFrame = requestFrame;
     this.kind = chooseRenderer();
     this.renderer = this.kind === "webgl"
       ? new THREE.WebGLRenderer({ antialias: true })
@@ -37,7 +40,7 @@ class Arm3D {
     this.controls = new THREE.OrbitControls(this.camera, this.renderer.domElement);
     this.controls.target.set(0.2, 0, 0.2);
     this.controls.update();
-    this.controls.addEventListener("change", () => { this.dirty = true; });
+    this.controls.addEventListener("change", () => { this.dirty = true; this.requestFrame(); });
     this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8899aa, 0.9));
     const sun = new THREE.DirectionalLight(0xffffff, 0.6);
     sun.position.set(1, -1, 2);
@@ -174,6 +177,7 @@ class Arm3D {
     this.camera.aspect = width / Math.max(1, height);
     this.camera.updateProjectionMatrix();
     this.dirty = true;
+    this.requestFrame();
   }
 
   render() {

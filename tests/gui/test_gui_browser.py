@@ -20,6 +20,12 @@ pytestmark = pytest.mark.browser
 
 BUTTONS = ("waypoints", "obstacle", "mode", "reset", "run", "stop", "estop")
 STATUS = f"scara/{ROBOT}/status"
+COUNT_FRAMES_ASKED = """() => {
+  window.framesAsked = 0;
+  const ask = window.requestAnimationFrame;
+  window.requestAnimationFrame = (callback) => { window.framesAsked += 1; return ask(callback); };
+}"""
+"""From now on, count the browser frames the page asks for."""
 
 
 def canvas(page: Any) -> bytes:
@@ -294,6 +300,10 @@ def test_a_recording_plays_back_and_its_slider_moves_the_arm(
             assert page.is_disabled(f"[data-command={name}]"), name
         duration = float(page.get_attribute("#slider", "max") or 0)
         assert duration > 1.0  # a lockstep run, recorded at the pace it ran
+        page.evaluate(COUNT_FRAMES_ASKED)
+        time.sleep(1.0)
+        asked = page.evaluate("window.framesAsked")
+        assert asked == 0, f"a page with nothing new asked for {asked} browser frames"
 
         def seek(fraction: float) -> None:
             shown, pixels = page.inner_text("#theta1"), canvas(page)
@@ -308,6 +318,7 @@ def test_a_recording_plays_back_and_its_slider_moves_the_arm(
             )
 
         seek(0.15)
+        assert page.evaluate("window.framesAsked") > 0
         seek(0.7)
         page.screenshot(path=tmp_path / "recording.png")
         page.click("#play")
