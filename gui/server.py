@@ -40,7 +40,8 @@ log = logging.getLogger("scara.gui")
 
 STATIC = Path(__file__).resolve().parent / "static"
 SEND_RATE = 40.0
-"""Updates per second to each page at most (the bridge publishes the joints at 100 Hz). Every
+"""Updates per second to each page at most, over time (:data:`BURST` may go back to back after a
+pause; the bridge publishes the joints at 100 Hz). Every
 update is a frame the browser draws: without a GPU (software WebGL and compositing), two pages
 of a recording playing drew 47 frames a second each at 50 updates and took 1.3 cores of a
 2-core machine; at 40 updates, 38 frames and 1.1 cores. Still above the 30 frames a second a
