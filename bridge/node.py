@@ -14,8 +14,8 @@ Two sides that never wait for each other:
 
 Joint state and TCP go out as they arrive, at most at their configured rate (100 Hz by
 default); one that comes before its turn waits for it, a newer one replacing it, so the last
-state before the arm stops is always published (``bridge/rate.py``). The other keys go out
-on change.
+state before the arm stops is always published, and the first of an arm that starts to
+move goes out at once (``bridge/rate.py``). The other keys go out on change.
 Access control is the Zenoh router's (``config/zenoh/secure-router.json5``).
 
 With ``--foxglove-port`` the same samples, the arm in 3D and (with ``--foxglove-commands``)
@@ -47,7 +47,7 @@ from bridge.commands import (
 )
 from bridge.foxglove_server import FoxgloveServer
 from bridge.operator import ANSWER_TIMEOUT, Answer, OperatorNode, Reply
-from bridge.rate import RateLimit
+from bridge.rate import RateLimit, StartOfMotion
 from bridge.session import add_zenoh_arguments, endpoint_from_args
 from bridge.view import Event
 from controller.planner import load_planned
@@ -73,6 +73,10 @@ QUEUE_SIZE = 256
 """Samples waiting for the Zenoh side before new ones are dropped."""
 DEFAULT_RATES = {"joints": 100.0, "tcp": 100.0}
 """Hz at most per key; keys not named here go out on every change."""
+MOTION_KEYS = ("joints", "tcp")
+"""The keys whose sample goes out at once when the arm starts to move (``bridge/rate.py``)."""
+STILL = 0.1
+"""s the arm stands still before its next move is such news."""
 STATUS_PERIOD = 0.1
 """s between two looks at whether the status changed (the nodes' status rate)."""
 STEP = 0.005
@@ -118,6 +122,7 @@ class Bridge:
         self._limits: dict[str, RateLimit[dict[str, Any]]] = {
             name: RateLimit(rate) for name, rate in rates.items() if rate
         }
+        self._start_of_motion = StartOfMotion(STILL)
         self._last_payload: dict[str, dict[str, Any]] = {}
         self._latest: dict[str, bytes] = {}
         self._latest_lock = threading.Lock()
@@ -179,13 +184,17 @@ class Bridge:
 
     def _on_joint_state(self, received: float) -> None:
         view = self.node.view
+        joints = view.joints_payload()
+        started = joints is not None and self._start_of_motion.moved(
+            time.monotonic(), joints["position"]
+        )
         for name, payload in (
-            ("joints", view.joints_payload()),
+            ("joints", joints),
             ("tcp", view.tcp_payload()),
             ("coordination", view.coordination_payload()),
         ):
             if payload is not None:
-                self._offer(name, payload)
+                self._offer(name, payload, news=started and name in MOTION_KEYS)
 
     def _on_event(self, event: Event, received: float) -> None:
         name, detail = event
@@ -198,11 +207,12 @@ class Bridge:
             self._task_published = task
             self._offer("scenario", task_document(task))
 
-    def _offer(self, name: str, payload: dict[str, Any]) -> None:
-        """Send ``payload`` for ``name`` if its rate allows (else it waits) or it changed."""
+    def _offer(self, name: str, payload: dict[str, Any], news: bool = False) -> None:
+        """Send ``payload`` for ``name`` if its rate allows (else it waits) or it is news,
+        or, for a key without a rate, if it changed."""
         limit = self._limits.get(name)
         if limit is not None:
-            allowed = limit.offer(time.monotonic(), payload)
+            allowed = limit.offer(time.monotonic(), payload, news)
             if allowed is not None:
                 self._send(name, allowed)
             return

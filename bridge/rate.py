@@ -4,6 +4,10 @@ A plain limiter that drops what comes before its turn loses the last state befor
 stops (or before a recording ends) whenever that state came within a period of the one
 before: monitors would show the arm a step short of where it is, for ever. Here a sample
 that comes early waits (a newer one replaces it) and goes out when its turn comes.
+
+The other way round, the first state of an arm that starts to move is news a user waits for
+(a run pressed in a page, to the arm's first move there): it goes out at once, not up to a
+period later on the grid (:class:`StartOfMotion` tells it).
 """
 
 from __future__ import annotations
@@ -23,11 +27,14 @@ class RateLimit(Generic[Sample]):
         self._due = -float("inf")
         self._waiting: Sample | None = None
 
-    def offer(self, now: float, sample: Sample) -> Sample | None:
-        """``sample`` if it may go now; else ``None``, and it waits for :meth:`due`."""
-        if now < self._due:
+    def offer(self, now: float, sample: Sample, news: bool = False) -> Sample | None:
+        """``sample`` if it may go now, or at once if it is ``news`` (the grid starts again
+        from it); else ``None``, and it waits for :meth:`due`."""
+        if now < self._due and not news:
             self._waiting = sample
             return None
+        if news:
+            self._due = -float("inf")
         self._waiting = None
         self._advance(now)
         return sample
@@ -45,3 +52,24 @@ class RateLimit(Generic[Sample]):
         # at a rate that is not a multiple of it; after a pause the grid starts again at now
         late = now - self._due >= self.period
         self._due = now + self.period if late else self._due + self.period
+
+
+class StartOfMotion:
+    """Tells the first position that differs after the arm stood still for at least
+    ``still`` s: the news of :meth:`RateLimit.offer`. Standing still that long first keeps
+    a position that jitters from making every sample news."""
+
+    def __init__(self, still: float) -> None:
+        self.still = still
+        self._position: object = None
+        self._still_since = float("inf")
+
+    def moved(self, now: float, position: object) -> bool:
+        """Whether ``position``, at ``now``, is the arm's first move after standing still."""
+        if position == self._position:
+            self._still_since = min(self._still_since, now)
+            return False
+        started = now - self._still_since >= self.still
+        self._position = position
+        self._still_since = float("inf")
+        return started
