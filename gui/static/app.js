@@ -16,7 +16,10 @@ const page = {
   time: 0,
   draft: { waypoints: [], obstacle: null }, // the task being edited
   edited: false, // the draft differs from the robot's task: a new task does not replace it
-  changed: true, // something to draw
+  // what to draw again: a part is drawn only when what it shows changed (a run's start brings
+  // a status, events and weights; the arm's views drawn again for them held up its first move)
+  numbersChanged: true, // the left panel's numbers and states
+  armChanged: true, // the joints, a path or the task: the top view and the 3D view
   taskChanged: true, // the draft task to draw again in 3D
   planChanged: true, pathRestarted: true, eventsChanged: true, // to draw again, not extend
   stats: { messages: 0, frames: 0 }, // read by the tests: updates received, frames drawn
@@ -95,8 +98,11 @@ function onState(message) {
   if (message.robot !== page.robot) return; // sent before a switch was seen
   // the server sends a key again only when it shows something new (gui/state.py); an update
   // of the plot's weights alone has nothing else to draw again
-  const visible = message.full || message.restarted || message.path.length
-    || message.events.length || message.plan || Object.keys(message.latest).length > 0;
+  if (message.full || message.events.length || Object.keys(message.latest).length > 0) {
+    page.numbersChanged = true;
+  }
+  if (message.full || message.restarted || message.path.length || message.plan
+    || message.latest.joints || message.latest.scenario) page.armChanged = true;
   if (message.full) {
     Object.assign(page, { latest: {}, path: [], trace: [], events: [] });
     page.pathRestarted = page.eventsChanged = true;
@@ -125,9 +131,8 @@ function onState(message) {
   page.time = message.time;
   if (message.latest.scenario && !page.edited) takeTask(message.latest.scenario);
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
-  if (visible) page.changed = true;
   if (message.full || message.trace.length) page.plotStale = true;
-  if (page.changed || page.plotStale) requestFrame();
+  if (page.numbersChanged || page.armChanged || page.plotStale) requestFrame();
 }
 
 // --- drawing, in a browser frame asked for when something changed ---
@@ -142,24 +147,16 @@ function requestFrame() {
 
 function frame(now) {
   page.framePending = false;
-  if (page.changed) {
-    page.changed = false;
+  const drawn = page.numbersChanged || page.armChanged;
+  if (page.numbersChanged) {
+    page.numbersChanged = false;
     drawNumbers();
-    const joints = page.latest.joints;
-    const topView = page.topView;
-    topView.joints = joints ? joints.position : null;
-    topView.path = page.path;
-    topView.plan = page.plan;
-    topView.draw();
-    if (page.view3d) {
-      if (joints) page.view3d.setJoints(joints.position);
-      page.view3d.extendLine(page.view3d.travelled, page.path, page.pathRestarted);
-      if (page.planChanged) page.view3d.setLine(page.view3d.plan, page.plan);
-      if (page.taskChanged) page.view3d.setTask(page.draft);
-    }
-    page.taskChanged = page.planChanged = page.pathRestarted = false;
-    page.stats.frames += 1;
   }
+  if (page.armChanged) {
+    page.armChanged = false;
+    drawArm();
+  }
+  if (drawn) page.stats.frames += 1;
   if (page.plotStale && now - page.plotted >= PLOT_PERIOD) {
     page.plotStale = false;
     page.plotted = now;
@@ -176,6 +173,22 @@ function frame(now) {
 function show(id, text) {
   const element = $(id);
   if (element.textContent !== text) element.textContent = text;
+}
+
+function drawArm() {
+  const joints = page.latest.joints;
+  const topView = page.topView;
+  topView.joints = joints ? joints.position : null;
+  topView.path = page.path;
+  topView.plan = page.plan;
+  topView.draw();
+  if (page.view3d) {
+    if (joints) page.view3d.setJoints(joints.position);
+    page.view3d.extendLine(page.view3d.travelled, page.path, page.pathRestarted);
+    if (page.planChanged) page.view3d.setLine(page.view3d.plan, page.plan);
+    if (page.taskChanged) page.view3d.setTask(page.draft);
+  }
+  page.taskChanged = page.planChanged = page.pathRestarted = false;
 }
 
 const degrees = (radians) => (radians * 180 / Math.PI).toFixed(2);
@@ -263,7 +276,7 @@ function takeTask(task) {
 
 function onDraftEdited() {
   page.edited = true;
-  page.changed = true;
+  page.armChanged = true;
   page.taskChanged = true;
   fillInputs();
   requestFrame();

@@ -26,6 +26,22 @@ COUNT_FRAMES_ASKED = """() => {
   window.requestAnimationFrame = (callback) => { window.framesAsked += 1; return ask(callback); };
 }"""
 """From now on, count the browser frames the page asks for."""
+WEIGHTS_ALONE = """() => new Promise((resolve) => {
+  const page = window.scara;
+  const drawn = { top: 0, view3d: 0, frames: page.stats.frames };
+  const top = page.topView.draw.bind(page.topView);
+  page.topView.draw = () => { drawn.top += 1; top(); };
+  const render = page.view3d.render.bind(page.view3d);
+  page.view3d.render = () => { const done = render(); drawn.view3d += done; return done; };
+  onState({ type: "state", robot: page.robot, time: page.time, full: false, restarted: false,
+    path: [], trace: [], events: [], plan: null,
+    latest: { coordination: { t: page.time, k_t: 0.25, k_c: 0.75, behaviour: "AO" } } });
+  const weights = document.getElementById("weights");
+  requestAnimationFrame(() => requestAnimationFrame(() => resolve({ ...drawn,
+    frames: page.stats.frames - drawn.frames, weights: weights.textContent })));
+})"""
+"""An update of the weights alone, as the page gets them: what the page draws for it (the
+numbers, in one frame; the arm's views are not drawn again)."""
 
 
 def canvas(page: Any) -> bytes:
@@ -321,6 +337,9 @@ def test_a_recording_plays_back_and_its_slider_moves_the_arm(
         assert page.evaluate("window.framesAsked") > 0
         seek(0.7)
         page.screenshot(path=tmp_path / "recording.png")
+        drawn = page.evaluate(WEIGHTS_ALONE)
+        assert drawn["weights"].startswith("k_T 0.25 k_C 0.75"), drawn
+        assert drawn["frames"] == 1 and drawn["top"] == 0 and drawn["view3d"] == 0, drawn
         page.click("#play")
         position = page.inner_text("#position")
         wait_until(lambda: page.inner_text("#position") != position, 10.0, "the playback")
