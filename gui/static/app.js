@@ -5,6 +5,7 @@
 const PLOT_SECONDS = 10; // k_T and k_C over this many seconds
 const EVENTS_SHOWN = 8;
 const PLOT_PERIOD = 100; // ms between two redraws of the plot (the weights come at 10 Hz)
+const SOON = 50; // ms what is not the arm's motion may wait for the motion's next frame
 const $ = (id) => document.getElementById(id);
 
 const page = {
@@ -27,6 +28,7 @@ const page = {
   plotted: 0, // when the plot was last drawn (ms)
   plotStale: true,
   framePending: false, // a browser frame is asked for
+  soonTimer: null, // a frame is to be asked for SOON, unless the arm's motion asks first
   plotTimer: null, // the plot's next turn is waited for
 };
 window.scara = page;
@@ -132,7 +134,8 @@ function onState(message) {
   if (message.latest.scenario && !page.edited) takeTask(message.latest.scenario);
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
   if (message.full || message.trace.length) page.plotStale = true;
-  if (page.numbersChanged || page.armChanged || page.plotStale) requestFrame();
+  if (message.full || message.latest.joints) requestFrame();
+  else if (page.numbersChanged || page.armChanged || page.plotStale) requestFrameSoon();
 }
 
 // --- drawing, in a browser frame asked for when something changed ---
@@ -143,6 +146,18 @@ function requestFrame() {
   if (page.framePending) return;
   page.framePending = true;
   requestAnimationFrame(frame);
+}
+
+// What is not the arm's motion (a status, events, the weights, a plan) waits up to SOON for
+// the motion's next frame and is drawn in it. As a run starts those came just before the arm
+// moved, each a frame of its own that both pages' browsers laid out, painted and composited
+// while the first move was waited for.
+function requestFrameSoon() {
+  if (page.framePending || page.soonTimer !== null) return;
+  page.soonTimer = setTimeout(() => {
+    page.soonTimer = null;
+    if (page.numbersChanged || page.armChanged || page.plotStale) requestFrame();
+  }, SOON);
 }
 
 function frame(now) {
