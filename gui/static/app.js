@@ -135,7 +135,7 @@ function onState(message) {
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
   if (message.full || message.trace.length) page.plotStale = true;
   if (message.full || message.latest.joints) requestFrame();
-  else if (page.numbersChanged || page.armChanged || page.plotStale) requestFrameSoon();
+  else if (somethingToDraw()) requestFrameSoon();
 }
 
 // --- drawing, in a browser frame asked for when something changed ---
@@ -156,9 +156,11 @@ function requestFrameSoon() {
   if (page.framePending || page.soonTimer !== null) return;
   page.soonTimer = setTimeout(() => {
     page.soonTimer = null;
-    if (page.numbersChanged || page.armChanged || page.plotStale) requestFrame();
+    if (somethingToDraw()) requestFrame();
   }, SOON);
 }
+
+const somethingToDraw = () => page.numbersChanged || page.armChanged || page.plotStale;
 
 function frame(now) {
   page.framePending = false;
