@@ -1,8 +1,8 @@
 """The web side: one page (``static/index.html``) and one WebSocket per open page.
 
-Kept thin: state goes out as the pages' JSON (:meth:`gui.state.RobotState.since`, at
-:data:`SEND_RATE` per page), commands come in and go out as the bridge's queries, its reply
-going back to the page that asked. Each page has a sending loop of its own, so a slow page
+Kept thin: state goes out as the pages' JSON (:meth:`gui.state.RobotState.since`, the arm's
+motion at :data:`SEND_RATE` per page), commands come in and go out as the bridge's queries,
+its reply going back to the page that asked. Each page has a sending loop of its own, so a slow page
 gets larger updates, and never holds the others up.
 
 Messages to the page: ``hello`` (once: live or recording, read-only or not, the arm's
@@ -40,16 +40,15 @@ log = logging.getLogger("scara.gui")
 
 STATIC = Path(__file__).resolve().parent / "static"
 SEND_RATE = 40.0
-"""Updates per second to each page at most, over time (:data:`BURST` may go back to back after a
-pause; the bridge publishes the joints at 100 Hz). Every
-update is a frame the browser draws: without a GPU (software WebGL and compositing), two pages
-of a recording playing drew 47 frames a second each at 50 updates and took 1.3 cores of a
-2-core machine; at 40 updates, 38 frames and 1.1 cores. Still above the 30 frames a second a
-page must show (``benchmarks/bench_gui.py``)."""
+"""Updates of the arm's motion (:data:`gui.state.MOTION_KEYS`) per second to each page at
+most, over time (:data:`BURST` may go back to back after a pause; the bridge publishes the
+joints at 100 Hz). Every such update is a frame the browser draws: without a GPU (software
+WebGL and compositing), two pages of a recording playing drew 47 frames a second each at 50
+updates and took 1.3 cores of a 2-core machine; at 40 updates, 38 frames and 1.1 cores. Still
+above the 30 frames a second a page must show (``benchmarks/bench_gui.py``)."""
 BURST = 2
-"""Updates that may go back to back after a pause: the arm's first move after a rest goes
-out at once even when the status's change (running) went out just before it (at one update
-per period, it waited up to a period), and over a run the pages still get SEND_RATE."""
+"""Updates of the motion that may go back to back after a pause: the arm's first move after
+a rest goes out at once, and over a run the pages still get SEND_RATE."""
 POLL = 0.002
 """s between two looks for a change, once a page is up to date."""
 MAX_MESSAGE = 256 * 1024
@@ -163,10 +162,11 @@ class PageSocket:
                 await asyncio.sleep(POLL)
                 last = time.monotonic()  # time spent waiting is not time a recording played
             now = time.monotonic()
-            if wait := budget.wait(now):
-                await asyncio.sleep(wait)
-                continue
-            budget.spend(now)
+            if self._draws_at_once():
+                if wait := budget.wait(now):
+                    await asyncio.sleep(wait)
+                    continue
+                budget.spend(now)
             elapsed, last = now - last, now
             if self.gui.fleet is not None and (fleet := self.gui.fleet.listing()) != listing:
                 listing = fleet
@@ -188,6 +188,15 @@ class PageSocket:
         if self.gui.fleet is not None and self.gui.fleet.listing() != listing:
             return True
         return self._state().changed_since(self.cursor)
+
+    def _draws_at_once(self) -> bool:
+        """Whether what is to send makes the page draw a frame at once: the arm's motion, or a
+        recording playing. Only that spends the budget; a status, events or the weights go at
+        once (the page draws them in the motion's next frame). As a run started those spent
+        the burst, and the arm's first move then waited 11-15 ms for the budget."""
+        if self.player is not None and self.player.playing:
+            return True
+        return self._state().moved_since(self.cursor)
 
     def _playback(self) -> dict[str, Any]:
         assert self.player is not None

@@ -33,6 +33,9 @@ PLAN_STEP = 0.02
 """s between two points of the planned path sent to the page."""
 RESTART_EVENTS = ("run_started", "reset")
 """Events after which the path travelled starts again."""
+MOTION_KEYS = ("joints", "tcp")
+"""State keys of the arm's motion: what the page draws a frame for at once (the rest waits
+for the motion's next frame), and what :data:`gui.server.SEND_RATE` paces."""
 STAMPS = ("t", "seq")
 """Fields of a sample that do not show: two samples alike but for these are a repeat."""
 
@@ -155,6 +158,14 @@ class RobotState:
         """Whether :meth:`since` has anything for a page at ``cursor`` (cheap: no copy)."""
         with self._lock:
             return cursor is None or cursor != self._cursor()
+
+    def moved_since(self, cursor: Cursor | None) -> bool:
+        """Whether :meth:`since` has the arm's motion for a page at ``cursor``: the whole
+        state, or a new sample of one of :data:`MOTION_KEYS` (cheap: no copy)."""
+        with self._lock:
+            return cursor is None or any(
+                self._changed.get(name, 0) > cursor.version for name in MOTION_KEYS
+            )
 
     def _cursor(self) -> Cursor:
         return Cursor(self._epoch, self._path.end, self._trace.end, self._events.end, self._version)

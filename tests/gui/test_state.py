@@ -4,6 +4,8 @@ own refusal of a read-only page's command: no browser, no process."""
 from __future__ import annotations
 
 import asyncio
+import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -157,3 +159,46 @@ def test_a_recording_paused_then_played_goes_on_from_where_it_was_paused() -> No
 
     position = asyncio.run(pause_then_play())
     assert 0.0 < position < PAUSED, position  # about 0.1 s played, not the pause as well
+
+
+def test_only_the_arms_motion_waits_for_a_pages_send_budget(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """As a run starts, the status and the weights change just before the arm moves: they go
+    to the page at once and spend nothing (the page draws them in the motion's next frame),
+    so they leave the burst to the arm's first move; the motion is paced. The budget here
+    refills once in 1000 s: nothing paced can go in the test's time, however slow the host."""
+    monkeypatch.setattr("gui.server.SEND_RATE", 0.001)
+    joints = {"t": 0.0, "seq": 0, "position": [0.0, 0.0, 0.0], "velocity": [0.0, 0.0, 0.0]}
+    recording = Recording([0.0, 60.0], [("joints", joints), ("joints", joints)], BASE)
+    socket = Sent()
+    page = PageSocket(socket, Gui("arm1", read_only=True, recording=recording))  # type: ignore[arg-type]
+    assert page.player is not None
+    state = page.player.state
+
+    def moved(angle: float) -> dict[str, Any]:
+        return joints | {"position": [angle, 0.0, 0.0]}
+
+    async def sent_after(name: str, payload: dict[str, Any], within: float) -> list[str]:
+        """The keys of what is sent for ``name`` (waited for up to ``within`` s)."""
+        before = len(socket.sent)
+        state.on_sample(name, payload)
+        deadline = time.monotonic() + within
+        while len(socket.sent) == before and time.monotonic() < deadline:
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.05)  # and anything sent just after it
+        return [",".join(json.loads(text)["latest"]) for text in socket.sent[before:]]
+
+    async def scenario() -> list[list[str]]:
+        sending = asyncio.create_task(page._send_loop())
+        await asyncio.sleep(0.5)  # the whole state: the burst's first update
+        assert len(socket.sent) == 1 and json.loads(socket.sent[0])["full"]
+        seen = [
+            await sent_after("joints", moved(0.1), 0.5),  # the burst's second
+            await sent_after("status", {"t": 0.0, "state": "running"}, 5.0),  # not paced
+            await sent_after("joints", moved(0.2), 0.5),  # paced: the budget is spent
+        ]
+        sending.cancel()
+        return seen
+
+    assert asyncio.run(scenario()) == [["joints"], ["status"], []]
