@@ -6,6 +6,7 @@ const PLOT_SECONDS = 10; // k_T and k_C over this many seconds
 const EVENTS_SHOWN = 8;
 const PLOT_PERIOD = 100; // ms between two redraws of the plot (the weights come at 10 Hz)
 const SOON = 50; // ms what is not the arm's motion may wait for the motion's next frame
+const STILL = 100; // ms without a move after which the arm's next move is a start
 const $ = (id) => document.getElementById(id);
 
 const page = {
@@ -22,6 +23,8 @@ const page = {
   numbersChanged: true, // the left panel's numbers and states
   armChanged: true, // the joints, a path or the task: the top view and the 3D view
   taskChanged: true, // the draft task to draw again in 3D
+  jointsMoved: false, // new joints to draw
+  movedAt: -Infinity, // when a frame last drew new joints (ms)
   planChanged: true, pathRestarted: true, eventsChanged: true, // to draw again, not extend
   stats: { messages: 0, frames: 0 }, // read by the tests: updates received, frames drawn
   commandId: 0,
@@ -105,6 +108,7 @@ function onState(message) {
   }
   if (message.full || message.restarted || message.path.length || message.plan
     || message.latest.joints || message.latest.scenario) page.armChanged = true;
+  if (message.latest.joints && !message.full) page.jointsMoved = true;
   if (message.full) {
     Object.assign(page, { latest: {}, path: [], trace: [], events: [] });
     page.pathRestarted = page.eventsChanged = true;
@@ -134,7 +138,8 @@ function onState(message) {
   if (message.latest.scenario && !page.edited) takeTask(message.latest.scenario);
   if (message.full && !message.latest.scenario && !page.edited) takeTask(null);
   if (message.full || message.trace.length) page.plotStale = true;
-  if (message.full || message.latest.joints) requestFrame();
+  // the arm's motion is drawn at once (scara-gui paces it: gui/state.py, MOTION_KEYS)
+  if (message.full || message.latest.joints || message.latest.tcp) requestFrame();
   else if (somethingToDraw()) requestFrameSoon();
 }
 
@@ -162,10 +167,19 @@ function requestFrameSoon() {
 
 const somethingToDraw = () => page.numbersChanged || page.armChanged || page.plotStale;
 
+// The first frame of a move after the arm stood still draws the arm alone; the numbers and the
+// plot follow in the motion's next frame. As a run started they came due in that same frame
+// (the weights and the status had changed) and held the arm's first move up 5-30 ms.
 function frame(now) {
   page.framePending = false;
-  const drawn = page.numbersChanged || page.armChanged;
-  if (page.numbersChanged) {
+  const starting = page.jointsMoved && now - page.movedAt > STILL;
+  if (page.jointsMoved) {
+    page.jointsMoved = false;
+    page.movedAt = now;
+  }
+  const numbers = page.numbersChanged && !starting;
+  const drawn = numbers || page.armChanged;
+  if (numbers) {
     page.numbersChanged = false;
     drawNumbers();
   }
@@ -174,7 +188,8 @@ function frame(now) {
     drawArm();
   }
   if (drawn) page.stats.frames += 1;
-  if (page.plotStale && now - page.plotted >= PLOT_PERIOD) {
+  if (starting) requestFrameSoon();
+  else if (page.plotStale && now - page.plotted >= PLOT_PERIOD) {
     page.plotStale = false;
     page.plotted = now;
     drawPlot();

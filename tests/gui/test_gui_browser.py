@@ -47,6 +47,33 @@ WEIGHTS_ALONE = """() => new Promise((resolve) => {
 })"""
 """An update of the weights alone, as the page gets them: what the page draws for it (the
 numbers, in one frame, after SOON; the arm's views are not drawn again)."""
+MOVE_STARTS = """() => new Promise((resolve) => {
+  const page = window.scara;
+  const seen = { top: 0, plot: 0, frames: [] };
+  const top = page.topView.draw.bind(page.topView);
+  page.topView.draw = () => { seen.top += 1; top(); };
+  const plot = page.plot.update.bind(page.plot);
+  page.plot.update = (mode) => { seen.plot += 1; plot(mode); };
+  const theta1 = document.getElementById("theta1");
+  const before = theta1.textContent;
+  const draw = window.frame;
+  window.frame = (now) => {
+    draw(now);
+    seen.frames.push({ top: seen.top, plot: seen.plot, theta1: theta1.textContent });
+    if (theta1.textContent !== before) {
+      window.frame = draw;
+      resolve({ before, frames: seen.frames });
+    }
+  };
+  const joints = page.latest.joints;
+  const position = [joints.position[0] + 0.5, ...joints.position.slice(1)];
+  onState({ type: "state", robot: page.robot, time: page.time, full: false, restarted: false,
+    path: [], trace: [[page.time, 0.4, 0.6]], events: [], plan: null,
+    latest: { joints: { ...joints, position },
+              coordination: { t: page.time, k_t: 0.4, k_c: 0.6, behaviour: "AO" } } });
+})"""
+"""The arm moves after standing still, with new weights beside it (as a run starts): the
+frames the page draws, each with the views and plot drawn so far and theta1 as it shows."""
 
 
 def canvas(page: Any) -> bytes:
@@ -346,6 +373,12 @@ def test_a_recording_plays_back_and_its_slider_moves_the_arm(
         assert drawn["weights"].startswith("k_T 0.25 k_C 0.75"), drawn
         assert drawn["frames"] == 1 and drawn["top"] == 0 and drawn["view3d"] == 0, drawn
         assert drawn["waited"] >= 50, drawn  # SOON: it waited for a motion's frame to join
+        time.sleep(0.2)  # the arm has stood still (STILL, 0.1 s)
+        moved = page.evaluate(MOVE_STARTS)
+        first, last = moved["frames"][0], moved["frames"][-1]
+        # the first frame of the move draws the arm alone; the numbers and the plot follow
+        assert first == {"top": 1, "plot": 0, "theta1": moved["before"]}, moved
+        assert len(moved["frames"]) == 2 and last["plot"] == 1, moved
         page.click("#play")
         position = page.inner_text("#position")
         wait_until(lambda: page.inner_text("#position") != position, 10.0, "the playback")
