@@ -47,11 +47,16 @@ class ZenohEndpoint:
 
 
 def add_zenoh_arguments(
-    parser: argparse.ArgumentParser, *, default_port: int = DEFAULT_PORT
+    parser: argparse.ArgumentParser,
+    *,
+    default_port: int = DEFAULT_PORT,
+    robot_help: str = "robot name",
 ) -> None:
-    """``--robot``, ``--zenoh-host``, ``--zenoh-port``, ``--allow-remote``, ``--user``,
-    ``--password-file``."""
-    parser.add_argument("--robot", default=DEFAULT_ROBOT, help="robot name (default %(default)s)")
+    """``--robot`` (``robot_help`` says what it is to this command), ``--zenoh-host``,
+    ``--zenoh-port``, ``--allow-remote``, ``--user``, ``--password-file``."""
+    parser.add_argument(
+        "--robot", default=DEFAULT_ROBOT, help=f"{robot_help} (default %(default)s)"
+    )
     group = parser.add_argument_group("Zenoh (the router where the robot's keys live)")
     group.add_argument(
         "--zenoh-host", default=DEFAULT_HOST, help="router address (default %(default)s)"

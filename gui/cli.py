@@ -70,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--scenario",
         help="scenario file or name for the robot's geometry (default: the packaged one)",
     )
-    add_zenoh_arguments(parser)
+    add_zenoh_arguments(parser, robot_help="the robot a page shows first (the page lists all)")
     add_verbosity(parser)
     return parser
 
