@@ -2,8 +2,8 @@
 
 Kept thin: state goes out as the pages' JSON (:meth:`gui.state.RobotState.since`, the arm's
 motion at :data:`SEND_RATE` per page), commands come in and go out as the bridge's queries,
-its reply going back to the page that asked. Each page has a sending loop of its own, so a slow page
-gets larger updates, and never holds the others up.
+its reply going back to the page that asked. Each page has a sending loop of its own, so a
+slow page gets larger updates, and never holds the others up.
 
 Messages to the page: ``hello`` (once: live or recording, read-only or not, the arm's
 geometry), ``robots`` (the fleet, on change), ``state`` (``full`` or what is new, the
@@ -193,7 +193,7 @@ class PageSocket:
         """Whether what is to send makes the page draw a frame at once: the arm's motion, or a
         recording playing. Only that spends the budget; a status, events or the weights go at
         once (the page draws them in the motion's next frame). As a run started those spent
-        the burst, and the arm's first move then waited 11-15 ms for the budget."""
+        the burst, and the arm's first move then waited 11-18 ms for the budget."""
         if self.player is not None and self.player.playing:
             return True
         return self._state().moved_since(self.cursor)

@@ -6,7 +6,7 @@ const PLOT_SECONDS = 10; // k_T and k_C over this many seconds
 const EVENTS_SHOWN = 8;
 const PLOT_PERIOD = 100; // ms between two redraws of the plot (the weights come at 10 Hz)
 const SOON = 50; // ms what is not the arm's motion may wait for the motion's next frame
-const STILL = 100; // ms without a move after which the arm's next move is a start
+const STILL = 100; // ms without a move after which the next is a start (as the bridge's STILL)
 const $ = (id) => document.getElementById(id);
 
 const page = {
