@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from controller.fuzzy import FuzzyInference, RuleBase, infer
+from controller.fuzzy import FuzzyInference, RuleBase, infer, packaged_rule_base
 from controller.obstacle import ObstacleMeasurement, absent
 from protocol.ops import Mask, Ops, Real
 
@@ -37,7 +37,7 @@ class Coordination:
     def of(
         cls, sensing_range: float, switch_distance: float, rule_base: RuleBase | None = None
     ) -> Coordination:
-        inference = FuzzyInference(rule_base or RuleBase.load())
+        inference = FuzzyInference(rule_base or packaged_rule_base())
         nothing = absent(sensing_range)
         k_t = inference.weights(nothing.min_distance, nothing.beta)[0]
         return cls(inference, sensing_range, switch_distance, k_t)

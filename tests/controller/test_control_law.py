@@ -25,6 +25,7 @@ from controller.control_law import (
     reach_limited,
 )
 from controller.coordination import Coordination, weights
+from controller.fuzzy import RuleBase
 from controller.obstacle import ObstacleMeasurement, measure
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.errors import ConfigError
@@ -296,3 +297,17 @@ def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
     far = measure(None, (0.3, 0.0, 0.2), (0.5, 0.0), CONFIG.sensing_range)
     assert approach_limited(SCALAR, CONFIG, 0.1, -0.2, far) == (0.1, -0.2)
+
+
+def test_a_runs_law_takes_the_packaged_rule_base_read_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each run's start builds its law in the tick that starts it: the packaged Table 2 is
+    read and checked against its schema once per process, not once per run."""
+    scenario = load_scenario("scenarios/reference.toml")
+    first = ControlLaw.for_scenario(scenario)
+
+    def read_again(cls: type[RuleBase], path: object = None) -> RuleBase:
+        raise AssertionError("the rule file was read again")
+
+    monkeypatch.setattr(RuleBase, "load", classmethod(read_again))
+    second = ControlLaw.for_scenario(scenario)
+    assert second.law.coordination.inference.rule_base is first.law.coordination.inference.rule_base
