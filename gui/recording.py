@@ -1,6 +1,7 @@
 """A recorded run played on the page: the decoded state channels of ``scara-record``'s MCAP
 (``scara/joints``, ``scara/tcp``, ``scara/coordination``, ``scara/status``,
-``scara/events``, JSON with the bridge's schemas) and the scenario attached to it.
+``scara/events``, ``scara/scenario``, JSON with the bridge's schemas) and the scenario
+attached to it (the task until one came into force on the bus).
 
 The whole recording is read once; each page has a :class:`Player` of its own (its time,
 play or pause, speed), which feeds a :class:`RobotState` of its own just as Zenoh feeds a

@@ -11,11 +11,13 @@ killed at any moment loses no more than that of its last frames. The file holds:
   timestamp in ns, the raw data bytes as the message), corrupt ones included;
 - the decoded state of the frames that pass the E2E checks, as the bridge publishes it
   (``scara/joints``, ``scara/tcp``, ``scara/coordination``, ``scara/status``,
-  ``scara/events``): JSON with the same JSON Schemas as the bridge's keys; in ``status`` the
-  ``bridge`` part holds the recorder's own counts;
+  ``scara/events``, and ``scara/scenario`` each time a task comes into force on the bus:
+  ``recorder/tasks.py``): JSON with the same JSON Schemas as the bridge's keys; in
+  ``status`` the ``bridge`` part holds the recorder's own counts;
 - the arm in 3D as Foxglove draws it (``bridge/scene.py``): ``foxglove.SceneUpdate`` on
   ``scara/scene`` and ``foxglove.FrameTransforms`` on ``scara/tf`` (protobuf, with Foxglove's
-  schemas), drawn from the decoded joint state and the scenario (if given), at most 30 Hz;
+  schemas), drawn from the decoded joint state and the task in force (the scenario given,
+  until one comes on the bus), at most 30 Hz;
 - the recorder's counts (``recorder/counts``: frames received and dropped so far) at the end
   of each chunk, which ``scara-record recover`` reads back from a file cut short;
 - metadata ``recording`` (software version, command line, start, frames written and
@@ -51,12 +53,13 @@ from protocol.e2e import E2EMonitor
 from protocol.errors import ScaraError
 from protocol.keys import schema
 from protocol.messages import (
+    CONTROLLER_ANSWER,
     STATE_IDS,
     JointStateParts,
 )
 from protocol.node import stop_on_signals
 from protocol.realtime import yield_to_the_nodes
-from protocol.scenario import Scenario, scenario_document
+from protocol.scenario import Scenario, scenario_document, task_document
 from recorder.mcap_can import (
     FLUSH_PERIOD,
     FrameChannels,
@@ -69,13 +72,14 @@ from recorder.mcap_can import (
     open_writer,
 )
 from recorder.recover import recover
+from recorder.tasks import TASK_IDS, TaskInForce
 from sim.report import LOG_FILE
 
 log = logging.getLogger("scara.recorder")
 
 QUEUE_FRAMES = 200_000
 """Frames the writer may fall behind by (50 s of a 1 kHz run) before frames are dropped."""
-DECODED = ("joints", "tcp", "coordination", "status", "events")
+DECODED = ("joints", "tcp", "coordination", "status", "events", "scenario")
 JOINTS_PERIOD = 0.01
 """s between decoded joint-state samples (100 Hz, the bridge's default rate); the raw
 frames keep every one."""
@@ -87,7 +91,7 @@ RUN_FILES = {
 }
 """What the nodes write of a run (results, the controller's log): attached with ``--run``."""
 STATE_ENCODING = "json"
-LISTENED = {codec.frame_id for codec in VIEWED}
+LISTENED = {codec.frame_id for codec in (*VIEWED, CONTROLLER_ANSWER)}
 
 
 class SceneChannels:
@@ -112,6 +116,9 @@ class SceneChannels:
     def on_event(self, event: str) -> None:
         self.scene.on_event(event)
 
+    def set_task(self, task: Scenario) -> None:
+        self.scene.set_task(task)
+
 
 def _protobuf_channel(writer: Writer, topic: str, schema: Schema) -> int:
     schema_id = writer.register_schema(schema.name, schema.encoding, schema.data)
@@ -126,6 +133,7 @@ class StateChannels:
         self.writer = writer
         self.view = RobotView(robot)
         self.scene = SceneChannels(writer, robot, task)
+        self.tasks = TaskInForce(task or Scenario("recorder", (), None, robot=robot))
         self.monitor = E2EMonitor()
         self._parts = JointStateParts()
         self._seq = dict.fromkeys(DECODED, 0)
@@ -143,11 +151,17 @@ class StateChannels:
         """Decode ``message`` (if it is valid) and write what it changes."""
         if message.arbitration_id in STATE_IDS and not self._joints_due(message):
             return
+        if message.arbitration_id in TASK_IDS:
+            self._in_force(self.tasks.on_transfer_frame(message), message.timestamp)
+            return
         accepted = self.monitor.accept(message, LISTENED)
         if accepted is None:
             return
         codec, counter, record = accepted
         received = message.timestamp
+        if codec is CONTROLLER_ANSWER:
+            self._in_force(self.tasks.on_answer(record), received)
+            return
         if codec.frame_id in STATE_IDS:
             complete = self._parts.add(STATE_IDS.index(codec.frame_id), counter, record)
             if complete is not None:
@@ -165,6 +179,12 @@ class StateChannels:
         elif codec.name in ("ControllerStatus", "PlantStatus"):
             self._write("status", self.view.status_payload(received, counts()), received)
 
+    def _in_force(self, task: Scenario | None, received: float) -> None:
+        """A task came into force: drawn from now on, and written as the bridge says it."""
+        if task is not None:
+            self.scene.set_task(task)
+            self._write("scenario", task_document(task), received)
+
     def _joints_due(self, message: can.Message) -> bool:
         """A joint-state frame is decoded only when a sample is due (:data:`JOINTS_PERIOD`);
         the others only keep its alive counter followed (the raw frames have them all)."""
@@ -179,7 +199,8 @@ class StateChannels:
     def _write(self, name: str, payload: dict[str, Any] | None, received: float) -> None:
         if payload is None:
             return
-        data = json.dumps(payload | {"seq": self._seq[name]}).encode()
+        numbered = payload if name == "scenario" else payload | {"seq": self._seq[name]}
+        data = json.dumps(numbered).encode()
         stamp = int(received * 1e9)
         self.writer.add_message(self._ids[name], stamp, data, stamp, self._seq[name])
         self._seq[name] += 1

@@ -4,7 +4,9 @@ over ISO-TP, the plant's world following the task, run, stop, reset, describe, a
 half-applied.
 
 Where a test needs a transfer the operator node would never send (a malformed or cut-off
-task), it speaks ISO-TP itself with its own :class:`IsoTpLink`, as any CAN tool could.
+task), it speaks ISO-TP itself with its own :class:`IsoTpLink`, as any CAN tool could. A
+listener that sends nothing (the recorder's :class:`TaskInForce`) follows them on a bus of its
+own.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from protocol.messages import (
 )
 from protocol.node import ClockMode
 from protocol.scenario import Scenario, encode_task, load_scenario, parse_task, task_document
+from recorder.tasks import TASK_IDS, TaskInForce
 
 REFERENCE = load_scenario("reference")
 BASE = Scenario("service", (), None)
@@ -190,6 +193,50 @@ def test_a_transfer_cut_off_midway_changes_nothing_and_the_next_one_goes_through
     again = moved(TASK, -0.02)
     assert rig.ask(again) == Answer(True, "none")
     assert rig.service.task == again
+
+
+class Listener:
+    """:class:`TaskInForce` on a bus of its own beside the rig's: every task that came into
+    force, as it heard them."""
+
+    def __init__(self, rig: Rig) -> None:
+        self.bus = can.Bus(interface="virtual", channel=rig.bus.channel_id)
+        self.tasks = TaskInForce(BASE)
+        self.in_force: list[Scenario] = []
+
+    def hear(self) -> list[Scenario]:
+        while (message := self.bus.recv(timeout=0.0)) is not None:
+            if message.arbitration_id in TASK_IDS:
+                task = self.tasks.on_transfer_frame(message)
+            elif message.arbitration_id == CONTROLLER_ANSWER.frame_id:
+                task = self.tasks.on_answer(WIRE.decode(message.arbitration_id, message.data)[2])
+            else:
+                continue
+            if task is not None:
+                self.in_force.append(task)
+        return self.in_force
+
+
+def test_a_listener_follows_the_task_in_force_and_never_a_refused_one(rig: Rig) -> None:
+    listener = Listener(rig)
+    assert rig.ask(TASK).accepted
+    assert listener.hear() == [TASK]
+    refused = moved(TASK, -0.02)
+    answer = rig.upload(document_of(refused, 9, lambda d: d["waypoints"][1].update(x=2.0)))
+    assert answer.Reason == Reason.UNREACHABLE
+    assert rig.ask(Request.RUN).accepted
+    assert rig.ask(refused) == Answer(False, "busy")
+    assert listener.hear() == [TASK]  # neither refused task came into force
+    assert rig.ask(Request.STOP).accepted
+    assert rig.ask(refused).accepted
+    assert listener.hear() == [TASK, refused]
+    assert listener.tasks.unreadable == 1  # the unreachable one: the controller's rules too
+
+    late = Listener(rig)  # started after the task was set: the controller's describe tells it
+    assert rig.ask(Request.DESCRIBE) == Answer(True, "none", refused)
+    assert late.hear() == [refused]
+    listener.bus.shutdown()
+    late.bus.shutdown()
 
 
 def test_a_run_starts_from_where_the_arm_is_and_a_change_while_running_is_refused(
