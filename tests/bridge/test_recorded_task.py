@@ -54,9 +54,11 @@ def test_a_recording_of_the_service_holds_the_task_the_controller_took_and_draws
     validator = jsonschema.Draft202012Validator(schema("scenario"))
     for task in tasks:
         validator.validate(task)
-    # the two the bridge set, in order, as the bridge says them on its own key
-    assert tasks == [payload for _, payload in heard.of("scenario")]
+    # the two the bridge set, in order; its own key says the task in force at its status
+    # rate, so it may skip the first when both came within one period, never differ
     assert [("obstacle" in task) for task in tasks] == [False, True]
+    said = [payload for _, payload in heard.of("scenario")]
+    assert said[-1] == tasks[-1] and all(task in tasks for task in said), said
     assert all(task["mode"] == "fuzzy" for task in tasks)
     assert [(w["x"], w["y"]) for w in tasks[-1]["waypoints"]] == [
         (w["x"], w["y"]) for w in REFERENCE["waypoints"]
