@@ -106,8 +106,6 @@ class IsoTpLink:
             )
         self._receiver = self._stack
         """The state machine receiving the transfer under way (the last first frame's)."""
-        self._queued = False
-        """A transfer was handed to :meth:`send` since the last :meth:`poll`."""
 
     def feed(self, message: can.Message) -> None:
         """A frame of the receive ID (flow control for our sends, or data for us)."""
@@ -123,14 +121,12 @@ class IsoTpLink:
     def send(self, payload: bytes) -> None:
         """Start sending ``payload`` and its CRC (frames go out as :meth:`poll` runs)."""
         self._stack.send(seal(payload))
-        self._queued = True
 
     def poll(self) -> list[bytes]:
         """Run the state machines over what was fed, frame by frame (where a frame goes
         depends on the state the previous ones left); the transfers completed since."""
         if self._idle():
             return []
-        self._queued = False
         while self._inbox:
             message = self._inbox.popleft()
             stack = self._route(message)
@@ -158,13 +154,13 @@ class IsoTpLink:
         return received
 
     def _idle(self) -> bool:
-        """Nothing to run: no frame fed, no transfer queued, being sent or being received
-        (so no timer running), and what completed was handed on by the last poll. The nodes
-        poll every tick, 500 a second, and are idle nearly always: running can-isotp's state
-        machines for nothing took 15 % of the controller's tick at rest."""
-        return not (self._inbox or self._queued) and all(
-            stack is None
-            or (stack.rx_state == stack.RxState.IDLE and stack.tx_state == stack.TxState.IDLE)
+        """Nothing to run: no frame fed, and neither state machine sending, receiving or
+        holding a completed transfer (so no timer running). The nodes poll every tick, 500 a
+        second, and are idle nearly always: running can-isotp's state machines for nothing
+        took 15 % of the controller's tick at rest."""
+        return not self._inbox and not any(
+            stack is not None
+            and (stack.transmitting() or stack.is_rx_active() or stack.available())
             for stack in (self._stack, self._listener)
         )
 
