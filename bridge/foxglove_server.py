@@ -11,6 +11,10 @@
   the call with the field and the reason. Foxglove's protocol has no users: without the flag
   the server is read-only, as the ``monitor`` user is on the secure router.
 
+Clients reach it only through :class:`~bridge.foxglove_gate.FoxgloveGate`, which checks
+their ``Host`` and ``Origin``: the SDK's own server listens on 127.0.0.1 over TLS that only
+the gate trusts.
+
 Fed by the bridge's publishing thread (:meth:`FoxgloveServer.on_sample`): the CAN side never
 waits for it.
 """
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import foxglove
@@ -26,10 +31,13 @@ from foxglove import Channel, Context, MessageSchema, Schema, Service, ServiceRe
 from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 from foxglove.websocket import Capability, WebSocketServer
 
+from bridge.foxglove_gate import FoxgloveGate
 from bridge.scene import SCENE_TOPIC, STATE_TOPIC_PREFIX, TF_TOPIC, ArmScene
+from protocol.certs import self_signed
 from protocol.config import RobotConfig
 from protocol.keys import COMMANDS, STATE_KEYS, schema
 from protocol.scenario import Scenario
+from protocol.zenoh_can.config import served_hosts
 
 SERVICE_PREFIX = "cmd/"
 JSON = "json"
@@ -38,18 +46,33 @@ Call = Callable[[str, bytes], dict[str, Any]]
 """A command and its JSON payload in, its reply out (blocking until the controller answers)."""
 
 
+@dataclass(frozen=True, slots=True)
+class FoxgloveSettings:
+    """Where the Foxglove server listens, whether it takes commands, and the web origins
+    whose pages may connect."""
+
+    host: str
+    port: int
+    commands: bool
+    origins: tuple[str, ...]
+
+
+INNER_HOST = "127.0.0.1"
+"""Where the SDK's own server listens, behind the gate."""
+
+
 def json_schema(name: str) -> Schema:
     """Schema ``name`` of ``protocol/keys.py`` as Foxglove carries it."""
     return Schema(name=name, encoding="jsonschema", data=json.dumps(schema(name)).encode())
 
 
 class FoxgloveServer:
-    """A Foxglove WebSocket server of its own context (channels, services) on ``host:port``."""
+    """A Foxglove WebSocket server of its own context (channels, services), reached through
+    its gate on ``settings.host:settings.port``. ``RuntimeError`` if it cannot listen."""
 
     def __init__(
         self,
-        host: str,
-        port: int,
+        settings: FoxgloveSettings,
         robot: RobotConfig,
         task: Callable[[], Scenario | None],
         call: Call | None,
@@ -69,19 +92,36 @@ class FoxgloveServer:
         self._scene = SceneUpdateChannel(SCENE_TOPIC, context=self.context)
         self._transforms = FrameTransformsChannel(TF_TOPIC, context=self.context)
         services = [] if call is None else [_service(name, call) for name in COMMANDS]
+        certificate, key = self_signed(INNER_HOST)
         self.server: WebSocketServer = foxglove.start_server(
             name="scara-bridge",
-            host=host,
-            port=port,
+            host=INNER_HOST,
+            port=0,
             context=self.context,
             capabilities=[Capability.Services] if services else [],
             supported_encodings=[JSON],
             services=services,
+            tls_cert=certificate,
+            tls_key=key,
         )
+        try:
+            self.gate = FoxgloveGate(
+                settings.host,
+                settings.port,
+                self.server.port,
+                certificate,
+                settings.origins,
+                served_hosts(settings.host),
+            )
+        except OSError as error:
+            self.server.stop()
+            raise RuntimeError(
+                f"cannot listen on {settings.host}:{settings.port}: {error}"
+            ) from None
 
     @property
     def port(self) -> int:
-        return self.server.port
+        return self.gate.port
 
     def on_sample(self, name: str, payload: dict[str, Any]) -> None:
         """A state key's sample, as it went out on Zenoh: to its channel, and to the scene."""
@@ -99,6 +139,7 @@ class FoxgloveServer:
                 self._scene.log(due.scene, log_time=log_time)
 
     def stop(self) -> None:
+        self.gate.stop()
         self.server.stop()
 
 

@@ -389,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
     interruptible()
     try:
         check_robot(args.robot)
-        endpoint: ZenohEndpoint = endpoint_from_args(args)
+        endpoint: ZenohEndpoint = endpoint_from_args(args, "scara-monitor")
         task = load_scenario(args.task)
     except (ValueError, OSError, ScaraError) as error:
         print(f"scara-monitor: {error}", file=sys.stderr)

@@ -32,7 +32,6 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -45,7 +44,8 @@ from bridge.commands import (
     edit_task,
     parse_payload,
 )
-from bridge.foxglove_server import FoxgloveServer
+from bridge.foxglove_gate import FOXGLOVE_APP_ORIGINS, check_origin
+from bridge.foxglove_server import FoxgloveServer, FoxgloveSettings
 from bridge.operator import ANSWER_TIMEOUT, Answer, OperatorNode, Reply
 from bridge.rate import RateLimit, StartOfMotion
 from bridge.session import add_zenoh_arguments, endpoint_from_args
@@ -67,7 +67,7 @@ from protocol.messages import Request
 from protocol.node import stop_on_signals
 from protocol.realtime import yield_to_the_nodes
 from protocol.scenario import Scenario, task_document
-from protocol.zenoh_can.config import DEFAULT_HOST, check_host, close
+from protocol.zenoh_can.config import DEFAULT_HOST, check_host, close, is_loopback, warn_in_clear
 
 QUEUE_SIZE = 256
 """Samples waiting for the Zenoh side before new ones are dropped."""
@@ -84,15 +84,6 @@ STEP = 0.005
 CALL_TIMEOUT = ANSWER_TIMEOUT + 1.0
 """s a caller that waits for its reply (a Foxglove service) waits at most: the controller's
 time to answer, and the CAN side's time to notice it did not."""
-
-
-@dataclass(frozen=True, slots=True)
-class FoxgloveSettings:
-    """Where the Foxglove server listens, and whether it takes commands."""
-
-    host: str
-    port: int
-    commands: bool
 
 
 class Bridge:
@@ -135,8 +126,7 @@ class Bridge:
             None
             if foxglove is None
             else FoxgloveServer(
-                foxglove.host,
-                foxglove.port,
+                foxglove,
                 base.robot,
                 lambda: self.node.task,
                 self.call if foxglove.commands else None,
@@ -471,6 +461,14 @@ def build_parser() -> argparse.ArgumentParser:
         "Foxglove services; without it Foxglove is read-only (its protocol has no users: "
         "anyone who reaches the port may call them), refused on an address not on loopback",
     )
+    group.add_argument(
+        "--foxglove-allow-origin",
+        action="append",
+        metavar="ORIGIN",
+        help="a web origin whose pages may connect (repeatable; default: the Foxglove app's, "
+        f"{', '.join(FOXGLOVE_APP_ORIGINS)}, and none else: a connection from another, or "
+        "without one, is refused)",
+    )
     add_bus_arguments(parser)
     add_verbosity(parser)
     return parser
@@ -497,7 +495,10 @@ def foxglove_from_args(args: argparse.Namespace) -> FoxgloveSettings | None:
                 "are served on loopback only (a remote operator commands through the secure "
                 "router as the operator user)"
             ) from None
-    return FoxgloveSettings(host, args.foxglove_port, args.foxglove_commands)
+    origins = tuple(args.foxglove_allow_origin or FOXGLOVE_APP_ORIGINS)
+    for origin in origins:
+        check_origin(origin)
+    return FoxgloveSettings(host, args.foxglove_port, args.foxglove_commands, origins)
 
 
 @quiet_on_closed_pipe
@@ -508,7 +509,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         robot = check_robot(args.robot)
         base = load_planned(args.scenario) if args.scenario else Scenario("bridge", (), None)
-        endpoint = endpoint_from_args(args)
+        endpoint = endpoint_from_args(args, "scara-bridge")
         foxglove = foxglove_from_args(args)
         bus = open_bus_from_args(args)
     except (ScaraError, can.CanError, ValueError, OSError) as error:
@@ -530,6 +531,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     stop_on_signals(bridge.stop)
     if foxglove is not None:
+        if not is_loopback(foxglove.host):
+            warn_in_clear("scara-bridge", "the robot's state on the Foxglove port")
         access = "with commands" if foxglove.commands else "read-only"
         print(
             f"scara-bridge: Foxglove on ws://{foxglove.host}:{foxglove.port} ({access})",

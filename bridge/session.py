@@ -1,7 +1,9 @@
 """Where a bridge or a monitor meets the others: a Zenoh client session to one router, with
-a user and password when that router authenticates (``config/zenoh/secure-router.json5``).
+a user and password when that router authenticates (``config/zenoh/secure-router.json5``),
+over a ``tls/`` link when it listens on one (``--zenoh-tls-ca``).
 
-Loopback only unless ``--allow-remote``; never a scouted or default-configured session.
+Loopback only unless ``--allow-remote``; never a scouted or default-configured session; a
+router off loopback joined without TLS is warned of (the password crosses in clear).
 """
 
 from __future__ import annotations
@@ -19,9 +21,12 @@ from protocol.keys import DEFAULT_ROBOT
 from protocol.zenoh_can.config import (
     DEFAULT_HOST,
     DEFAULT_PORT,
+    Tls,
     build_zenoh_config,
     check_host,
     client_config,
+    is_loopback,
+    warn_in_clear,
 )
 
 PASSWORD_VARIABLE = "SCARA_ZENOH_PASSWORD"
@@ -35,15 +40,17 @@ class ZenohEndpoint:
     port: int
     user: str | None = None
     password: str | None = None
+    tls: Tls | None = None
 
     def open(self) -> zenoh.Session:
         """A client session of this router (raises ``zenoh.ZError`` if it cannot)."""
-        settings = client_config(self.host, self.port, self.user, self.password)
+        settings = client_config(self.host, self.port, self.user, self.password, self.tls)
         return zenoh.open(build_zenoh_config(settings))
 
     def __str__(self) -> str:
         who = f"{self.user}@" if self.user else ""
-        return f"{who}{self.host}:{self.port}"
+        scheme = "tls/" if self.tls is not None else ""
+        return f"{scheme}{who}{self.host}:{self.port}"
 
 
 def add_zenoh_arguments(
@@ -76,12 +83,27 @@ def add_zenoh_arguments(
         type=Path,
         help=f"file holding the password (or set {PASSWORD_VARIABLE})",
     )
+    group.add_argument(
+        "--zenoh-tls-ca",
+        type=Path,
+        metavar="PEM",
+        help="join the router on a tls/ link, its certificate signed by this CA (scara-certs)",
+    )
+    group.add_argument(
+        "--zenoh-tls-cert",
+        type=Path,
+        metavar="PEM",
+        help="this client's certificate, for a router that asks for one (mutual TLS)",
+    )
+    group.add_argument("--zenoh-tls-key", type=Path, metavar="PEM", help="its private key")
 
 
-def endpoint_from_args(args: argparse.Namespace) -> ZenohEndpoint:
-    """The endpoint the arguments name; ``ValueError``/``OSError`` if they are wrong."""
+def endpoint_from_args(args: argparse.Namespace, program: str) -> ZenohEndpoint:
+    """The endpoint the arguments name; ``ValueError``/``OSError`` if they are wrong.
+    ``program`` warns, off loopback without TLS, that what it sends crosses in clear."""
     try:
         host = check_host(args.zenoh_host, allow_remote=args.allow_remote, name="--zenoh-host")
+        tls = Tls.of(args.zenoh_tls_ca, args.zenoh_tls_cert, args.zenoh_tls_key, "client")
     except can.CanInitializationError as error:
         raise ValueError(str(error)) from None
     password = None
@@ -91,4 +113,6 @@ def endpoint_from_args(args: argparse.Namespace) -> ZenohEndpoint:
         password = os.environ.get(PASSWORD_VARIABLE)
     if args.user is not None and not password:
         raise ValueError(f"--user {args.user} needs --password-file or {PASSWORD_VARIABLE}")
-    return ZenohEndpoint(host, args.zenoh_port, args.user, password)
+    if tls is None and not is_loopback(host):
+        warn_in_clear(program, "the user's password, the state and the commands")
+    return ZenohEndpoint(host, args.zenoh_port, args.user, password, tls)

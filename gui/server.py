@@ -19,10 +19,10 @@ import contextlib
 import json
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 import zenoh
 from starlette.applications import Starlette
@@ -31,6 +31,7 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from gui.access import guards
 from gui.live import Fleet, send_command
 from gui.recording import SPEEDS, Player, Recording
 from gui.state import Cursor, RobotState, geometry
@@ -132,11 +133,13 @@ class PageSocket:
         sending = asyncio.create_task(self._send_loop())
         try:
             while True:
-                text = await self.websocket.receive_text()
+                received = await self.websocket.receive()
+                if received["type"] == "websocket.disconnect":
+                    raise WebSocketDisconnect(received.get("code", 1000))
                 try:
-                    message = json.loads(text)
+                    message = json.loads(received["text"])
                     kind = message["type"]
-                except (ValueError, KeyError, TypeError):
+                except (ValueError, KeyError, TypeError):  # not text, not JSON, no type
                     await self.send({"type": "error", "message": "not a JSON object with a type"})
                     continue
                 await self._on_message(kind, message)
@@ -261,25 +264,14 @@ class PageSocket:
         return None
 
 
-def same_origin(websocket: WebSocket) -> bool:
-    """A browser sends its page's origin with a WebSocket: only this server's own page may
-    talk to it (another site open in the browser must not command the robot)."""
-    origin = websocket.headers.get("origin")
-    if origin is None:
-        return True  # not a browser: a script has the network access anyway
-    return urlsplit(origin).netloc == websocket.headers.get("host")
-
-
-def build_app(gui: Gui) -> Starlette:
-    """The page, its files and its WebSocket."""
+def build_app(gui: Gui, hosts: Sequence[str]) -> Starlette:
+    """The page, its files and its WebSocket, for requests that name one of ``hosts`` and
+    come from this server's own page (:mod:`gui.access`)."""
 
     async def index(request: Any) -> FileResponse:
         return FileResponse(STATIC / "index.html")
 
     async def page_socket(websocket: WebSocket) -> None:
-        if not same_origin(websocket):
-            await websocket.close(code=1008)
-            return
         await websocket.accept()
         with contextlib.suppress(WebSocketDisconnect, RuntimeError):  # a page closed mid-send
             await PageSocket(websocket, gui).serve()
@@ -289,5 +281,6 @@ def build_app(gui: Gui) -> Starlette:
             Route("/", index),
             WebSocketRoute("/ws", page_socket),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
-        ]
+        ],
+        middleware=guards(hosts),
     )

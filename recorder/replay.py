@@ -433,7 +433,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             what = "decoded state" if to_zenoh else "CAN frames"
             raise RecordingError(f"{args.file}: no {what} in it")
         if to_zenoh:
-            session = endpoint_from_args(args).open()
+            session = endpoint_from_args(args, "scara-replay").open()
             bus: Any = ZenohStateSink(session, check_robot(args.robot))
         else:
             bus = open_bus_from_args(args)

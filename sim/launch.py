@@ -28,11 +28,13 @@ from pathlib import Path
 from types import FrameType
 from typing import IO
 
+import can
 import zenoh
 from tqdm import tqdm
 
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, parse_options, resolve_transport
+from protocol.certs import CA, CLIENT, SERVER, CertificateSet
 from protocol.cli import (
     add_comms_timeout_argument,
     add_verbosity,
@@ -48,6 +50,7 @@ from protocol.scenario import Mode
 from protocol.zenoh_can.config import (
     DEFAULT_HOST,
     DEFAULT_PORT,
+    Tls,
     router_reachable,
 )
 from sim.report import LOG_FILE, RECORDING, format_report, read_run
@@ -142,6 +145,19 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"port of the secure router (default {SECURE_PORT}; its address is the bus's "
         "host option, 127.0.0.1 unless given)",
     )
+    tls = parser.add_argument_group("TLS (every Zenoh link of the run encrypted)")
+    tls.add_argument(
+        "--tls",
+        type=Path,
+        metavar="DIR",
+        help="the routers listen on tls/ links only, with DIR/server.pem, and every process "
+        "joins them checking it against DIR/ca.pem (make DIR with scara-certs --out DIR)",
+    )
+    tls.add_argument(
+        "--mtls",
+        action="store_true",
+        help="with --tls: the routers let in only processes showing DIR/client.pem (mutual TLS)",
+    )
     add_comms_timeout_argument(parser, None, "default: the controller's, see controller --help")
     add_timing_arguments(parser)
     add_bus_arguments(parser)
@@ -185,6 +201,40 @@ def node_commands(args: argparse.Namespace, time_limit: float) -> tuple[list[str
     return plant, controller
 
 
+def tls_of(args: argparse.Namespace, side: str) -> Tls | None:
+    """The TLS files of ``--tls DIR`` for a ``client`` or a ``router`` (None without it)."""
+    if args.tls is None:
+        return None
+    files = CertificateSet(args.tls)
+    mutual = args.mtls
+    if side == "client":
+        return Tls(
+            files.certificate(CA),
+            files.certificate(CLIENT) if mutual else None,
+            files.key(CLIENT) if mutual else None,
+        )
+    return Tls(
+        files.certificate(CA) if mutual else None, files.certificate(SERVER), files.key(SERVER)
+    )
+
+
+def tls_named(tls: Tls | None, names: tuple[str, str, str]) -> list[tuple[str, str]]:
+    """``tls``'s files, each with the name ``names`` gives it (CA, certificate, key)."""
+    if tls is None:
+        return []
+    given = zip(names, (tls.ca, tls.certificate, tls.key), strict=True)
+    return [(name, str(path)) for name, path in given if path is not None]
+
+
+def tls_flags(tls: Tls | None, flags: tuple[str, str, str]) -> list[str]:
+    """``tls``'s files as the command-line flags ``flags`` (CA, certificate, key) name them."""
+    return [part for pair in tls_named(tls, flags) for part in pair]
+
+
+ROUTER_TLS_FLAGS = ("--tls-client-ca", "--tls-cert", "--tls-key")
+CLIENT_TLS_FLAGS = ("--zenoh-tls-ca", "--zenoh-tls-cert", "--zenoh-tls-key")
+
+
 def can_router(args: argparse.Namespace) -> tuple[str, int]:
     """The host and port of the CAN router the bus options name."""
     options = parse_options(args.bus_option)
@@ -206,6 +256,7 @@ def bridge_command(args: argparse.Namespace) -> list[str]:
     host, port = keys_router(args)
     command = [sys.executable, "-m", "bridge.node", args.scenario, "--interface", interface]
     command += ["--channel", channel, "--zenoh-host", host, "--zenoh-port", str(port)]
+    command += tls_flags(tls_of(args, "client"), CLIENT_TLS_FLAGS)
     if args.secure:
         command += ["--user", BRIDGE_USER]
     if args.robot:
@@ -252,6 +303,7 @@ def secure_router_command(args: argparse.Namespace, folder: Path) -> list[str]:
     host, port = keys_router(args)
     command = [sys.executable, "-m", "protocol.zenoh_can.router", "--host", host]
     command += ["--port", str(port), "--config", str(path)]
+    command += tls_flags(tls_of(args, "router"), ROUTER_TLS_FLAGS)
     if parse_options(args.bus_option).get("allow_remote"):
         command.append("--allow-remote")
     return command + ["-v"] * args.verbose
@@ -267,6 +319,7 @@ def serving_hint(args: argparse.Namespace, users: dict[str, str]) -> str:
     )
     if args.robot:
         where += f" --robot {args.robot}"
+    where = " ".join([where, *tls_flags(tls_of(args, "client"), CLIENT_TLS_FLAGS)])
     if not args.secure:
         return f"scara-run: serving; watch and command it with: scara-monitor {where}"
     lines = [
@@ -335,10 +388,10 @@ def router_command(args: argparse.Namespace) -> list[str] | None:
     if interface != "zenoh":
         return None
     host, port = can_router(args)
-    if router_reachable(host, port):
+    if router_reachable(host, port, tls=tls_of(args, "client")):
         return None
     command = [sys.executable, "-m", "protocol.zenoh_can.router", "--host", host]
-    command += ["--port", str(port)]
+    command += ["--port", str(port), *tls_flags(tls_of(args, "router"), ROUTER_TLS_FLAGS)]
     if parse_options(args.bus_option).get("allow_remote"):
         command.append("--allow-remote")
     return command
@@ -389,6 +442,24 @@ def name_the_robot(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         args.out = DEFAULT_OUT / args.robot
 
 
+def check_tls(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--tls DIR``: its files there (ScaraError naming the missing one), and the buses
+    told to join over TLS; ``--mtls`` only with it."""
+    if args.tls is None:
+        if args.mtls:
+            parser.error("--mtls goes with --tls DIR")
+        return
+    for side in ("client", "router"):
+        tls = tls_of(args, side)
+        assert tls is not None
+        try:
+            tls.check(side)
+        except can.CanInitializationError as error:
+            raise ScaraError(f"--tls {args.tls}: {error} (make a set with scara-certs)") from None
+    given = tls_named(tls_of(args, "client"), ("tls_ca", "tls_cert", "tls_key"))
+    args.bus_option += [f"{option}={path}" for option, path in given]
+
+
 def check_secure(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, str]:
     """The users of ``--credentials`` when ``--secure`` (none otherwise); exits 2 on flags that
     do not go together (ScaraError from :func:`read_credentials`)."""
@@ -420,6 +491,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         scenario = load_planned(args.scenario)
         parse_options(args.bus_option)
         name_the_robot(parser, args)
+        check_tls(parser, args)
         users = check_secure(parser, args)
     except (ScaraError, argparse.ArgumentTypeError) as error:
         print(f"scara-run: {error}", file=sys.stderr)
@@ -443,19 +515,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         command = router_command(args)
         if command is not None:
             router = subprocess.Popen(command)
-            if not wait_for_router(router, lambda: router_reachable(*can_router(args))):
+            client = tls_of(args, "client")
+            if not wait_for_router(router, lambda: router_reachable(*can_router(args), tls=client)):
                 print("scara-run: the Zenoh router did not come up", file=sys.stderr)
                 return 1
         if args.secure:
             password = users[BRIDGE_USER]
             host, port = keys_router(args)
-            if router_reachable(host, port, BRIDGE_USER, password):  # another robot's: share it
+            client = tls_of(args, "client")
+            if router_reachable(host, port, BRIDGE_USER, password, client):  # another's: share it
                 print(f"scara-run: joining the secure router on {host}:{port}", file=sys.stderr)
             else:
                 with tempfile.TemporaryDirectory(prefix="scara-run-") as folder:  # read at start
                     secure_router = subprocess.Popen(secure_router_command(args, Path(folder)))
                     if not wait_for_router(
-                        secure_router, lambda: router_reachable(host, port, BRIDGE_USER, password)
+                        secure_router,
+                        lambda: router_reachable(host, port, BRIDGE_USER, password, client),
                     ):
                         print(
                             f"scara-run: the secure router did not let {BRIDGE_USER} in on "

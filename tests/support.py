@@ -21,7 +21,9 @@ Network rules (``docs/design.md``): Zenoh only through the project's own configu
 
 from __future__ import annotations
 
+import base64
 import contextlib
+import hashlib
 import importlib
 import json
 import math
@@ -42,6 +44,8 @@ import can
 import numpy as np
 import pytest
 import zenoh
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
 from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
 
 from bridge.scene import QUILL, WORLD
@@ -435,12 +439,33 @@ def same_frame(a: can.Message, b: can.Message, *, timestamps: bool = True) -> bo
     return a.equals(b, timestamp_delta=delta, check_channel=False, check_direction=False)
 
 
-def open_client(port: int, user: str | None = None, password: str | None = None) -> zenoh.Session:
+def open_client(
+    port: int,
+    user: str | None = None,
+    password: str | None = None,
+    *,
+    ca: Path | None = None,
+    certificate: Path | None = None,
+    key: Path | None = None,
+) -> zenoh.Session:
     """A plain Zenoh client session written here from Zenoh's own configuration keys (no
-    project code): multicast scouting off, one explicit ``tcp/127.0.0.1`` endpoint."""
+    project code): multicast scouting off, one explicit ``tcp/127.0.0.1`` endpoint (with
+    ``ca``, ``tls/127.0.0.1``: the router's certificate checked against it, and this
+    client's ``certificate`` and ``key`` shown to a router that asks)."""
     config = zenoh.Config()
     config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    scheme = "tcp" if ca is None else "tls"
+    config.insert_json5("connect/endpoints", json.dumps([f"{scheme}/127.0.0.1:{port}"]))
+    tls = {
+        "root_ca_certificate": ca,
+        "connect_certificate": certificate,
+        "connect_private_key": key,
+    }
+    for name, path in tls.items():
+        if path is not None:
+            config.insert_json5(f"transport/link/tls/{name}", json.dumps(str(path)))
+    if certificate is not None:
+        config.insert_json5("transport/link/tls/enable_mtls", "true")
     config.insert_json5("listen/endpoints", "[]")
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "false")
@@ -518,3 +543,28 @@ BROWSER_ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader"]
 """No sandbox as root in a container; SwiftShader: WebGL in software, there is no GPU."""
 VIEWPORT = {"width": 1280, "height": 760}
 """The pages' size in the browser tests and the GUI benchmark."""
+
+
+def make_certificates(folder: Path, *names: str) -> Path:
+    """A ``scara-certs`` set in ``folder`` (CA, server, client), made by the command itself;
+    the server's certificate valid for ``names`` too."""
+    given = [part for name in names for part in ("--name", name)]
+    subprocess.run(
+        [sys.executable, "-m", "protocol.certs", "--out", str(folder), *given],
+        check=True,
+        capture_output=True,
+        cwd=ROOT,
+    )
+    return folder
+
+
+def trusting(certificate: Path) -> str:
+    """Chromium's flag that trusts the server certificate ``certificate`` (its public key's
+    SHA-256, pinned) and no other that its own store does not: how a browser test opens a
+    page served with a ``scara-certs`` certificate."""
+    loaded = x509.load_pem_x509_certificate(certificate.read_bytes())
+    key = loaded.public_key().public_bytes(
+        serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
+    )
+    pin = base64.b64encode(hashlib.sha256(key).digest()).decode()
+    return f"--ignore-certificate-errors-spki-list={pin}"

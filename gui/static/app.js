@@ -39,7 +39,8 @@ window.scara = page;
 // --- the socket ---
 
 function connect() {
-  const socket = new WebSocket(`ws://${location.host}/ws`);
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  const socket = new WebSocket(`${scheme}://${location.host}/ws`);
   page.socket = socket;
   socket.onmessage = (event) => onMessage(JSON.parse(event.data));
   socket.onclose = () => {
@@ -67,8 +68,6 @@ function onHello(hello) {
   page.robot = hello.robot;
   const who = hello.mode === "recording" ? "recording" : `live as ${hello.user || "anonymous"}`;
   $("connection").textContent = who + (hello.read_only ? " (read-only)" : "");
-  for (const button of document.querySelectorAll("[data-command]")) button.disabled = hello.read_only;
-  $("mode-choice").disabled = hello.read_only;
   if (hello.mode === "recording") setUpPlayback(hello);
   if (first) {
     page.view3d = make3D(hello.geometry);
@@ -76,6 +75,18 @@ function onHello(hello) {
     page.plot = makePlot();
     requestFrame();
   }
+  lockEditing();
+}
+
+// A read-only page (a recording, a read-only user): every button and every control that
+// edits the task disabled, the mouse on the top view edits nothing.
+function lockEditing() {
+  const readOnly = page.hello !== null && page.hello.read_only;
+  for (const control of document.querySelectorAll("[data-command], .edits")) {
+    const noObstacle = control.closest("#obstacle") !== null && page.draft.obstacle === null;
+    control.disabled = readOnly || noObstacle;
+  }
+  if (page.topView) page.topView.editable = !readOnly;
 }
 
 function make3D(geometry) {
@@ -322,21 +333,22 @@ function fillInputs() {
     for (const field of ["t", "x", "y", "z"]) {
       const input = document.createElement("input");
       Object.assign(input, { type: "number", step: field === "t" ? "0.1" : "0.005", value: waypoint[field] });
+      input.className = "edits";
       input.dataset.field = field;
       input.onchange = () => { waypoint[field] = Number(input.value); onDraftEdited(); };
       row.insertCell().appendChild(input);
     }
     const remove = document.createElement("button");
-    Object.assign(remove, { type: "button", textContent: "×", title: "delete this waypoint" });
+    Object.assign(remove, { type: "button", textContent: "×", title: "delete this waypoint", className: "edits" });
     remove.onclick = () => { page.draft.waypoints.splice(index, 1); onDraftEdited(); };
     row.insertCell().appendChild(remove);
   });
   const obstacle = page.draft.obstacle;
   $("has-obstacle").checked = obstacle !== null;
   for (const input of $("obstacle").querySelectorAll("input")) {
-    input.disabled = obstacle === null;
     if (obstacle) input.value = obstacle[input.dataset.field];
   }
+  lockEditing();
 }
 
 function setUpInputs() {

@@ -15,6 +15,7 @@ class TopView {
     this.draft = draft; // {waypoints: [...], obstacle: {...} | null}, shared with the inputs
     this.onEdit = onEdit;
     this.mode = "waypoints";
+    this.editable = true; // false on a read-only page: the mouse edits nothing
     this.joints = null;
     this.path = [];
     this.plan = [];
@@ -61,7 +62,7 @@ class TopView {
   }
 
   press(event) {
-    if (event.button !== 0) return;
+    if (event.button !== 0 || !this.editable) return;
     const [x, y] = this.toWorld(event);
     if (this.mode === "waypoints") {
       const index = this.nearestWaypoint(event);
@@ -98,7 +99,7 @@ class TopView {
 
   remove(event) {
     event.preventDefault();
-    if (this.mode !== "waypoints") return;
+    if (this.mode !== "waypoints" || !this.editable) return;
     const index = this.nearestWaypoint(event);
     if (index >= 0) {
       this.draft.waypoints.splice(index, 1);
@@ -108,7 +109,7 @@ class TopView {
 
   wheel(event) {
     const o = this.draft.obstacle;
-    if (this.mode !== "obstacle" || !o) return;
+    if (this.mode !== "obstacle" || !o || !this.editable) return;
     event.preventDefault();
     const direction = event.deltaY < 0 ? 1 : -1;
     if (event.shiftKey) {

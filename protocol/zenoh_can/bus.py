@@ -16,12 +16,14 @@ Registered under python-can's ``can.interface`` entry point group::
 
     bus = can.Bus(interface="zenoh", channel="scara")            # router on 127.0.0.1:17447
     bus = can.Bus(interface="zenoh", channel="scara", port=17448)
+    bus = can.Bus(interface="zenoh", channel="scara", tls_ca="certs/ca.pem")  # a TLS router
     python -m can.logger -i zenoh -c scara -f run.asc --bus-kwargs port=17448
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import queue
 import struct
@@ -41,17 +43,20 @@ from protocol.zenoh_can.config import (
     DEFAULT_PORT,
     FLUSH_PREFIX,
     KEY_PREFIX,
+    Tls,
     build_zenoh_config,
     check_host,
     check_port,
     client_config,
     close,
     endpoint,
+    is_loopback,
     key_for_channel,
 )
 from protocol.zenoh_can.frame import MalformedFrameError, decode_frames, encode_frame
 
 _RETRY = 0.05  # s between attempts to reach the router while opening
+log = logging.getLogger("scara.zenoh_can")
 
 
 class ZenohBus(can.BusABC):
@@ -75,6 +80,9 @@ class ZenohBus(can.BusABC):
         linger: float = 2.0,
         open_timeout: float = 5.0,
         fd: bool = False,
+        tls_ca: str | None = None,
+        tls_cert: str | None = None,
+        tls_key: str | None = None,
         **kwargs: Any,
     ) -> None:
         """Join the channel through the router at ``host:port``.
@@ -86,7 +94,10 @@ class ZenohBus(can.BusABC):
         fast as possible) where throughput matters more than latency;
         ``linger`` bounds how long :meth:`shutdown` waits for the receivers to confirm they
         have taken every frame sent before (the flush barrier; 0 skips it); ``open_timeout``
-        how long to wait for the router. Other keyword arguments from python-can
+        how long to wait for the router; ``tls_ca`` (the CA that signed the router's
+        certificate) joins a router that listens on a ``tls/`` link, ``tls_cert`` and
+        ``tls_key`` are this bus's own certificate for one that asks (mutual TLS). Other
+        keyword arguments from python-can
         configuration (``bitrate``, ``single_handle``, ...) are accepted and ignored.
         """
         self.channel_name = DEFAULT_CHANNEL if channel is None else str(channel)
@@ -111,7 +122,10 @@ class ZenohBus(can.BusABC):
         # match, so that the query may end in /**: a query for the exact key waits its whole
         # timeout for a queryable that has already left (eclipse-zenoh/zenoh#2454).
         self._flush_key = FLUSH_PREFIX + self.key[len(KEY_PREFIX) :] + "/@end"
-        self.zenoh_settings = client_config(self.host, self.port)
+        self.tls = Tls.of(tls_ca, tls_cert, tls_key, "client")
+        if self.tls is None and not is_loopback(self.host):
+            log.warning("the frames to and from %s cross the network in clear (no TLS)", self.host)
+        self.zenoh_settings = client_config(self.host, self.port, tls=self.tls)
         self._session = self._open_session(float(open_timeout))
         try:
             self._subscriber = self._session.declare_subscriber(
@@ -134,14 +148,14 @@ class ZenohBus(can.BusABC):
             ) from None
         self.channel_info = (
             f"Zenoh CAN channel {self.channel_name!r} (key {self.key}, "
-            f"router {endpoint(self.host, self.port)})"
+            f"router {endpoint(self.host, self.port, tls=self.tls is not None)})"
         )
         super().__init__(channel=self.channel_name, can_filters=can_filters, **kwargs)
 
     def _open_session(self, timeout: float) -> zenoh.Session:
         """A client session of the router, retried until ``timeout`` (it may be starting)."""
         deadline = time.monotonic() + timeout
-        where = endpoint(self.host, self.port)
+        where = endpoint(self.host, self.port, tls=self.tls is not None)
         while True:
             try:
                 session = zenoh.open(build_zenoh_config(self.zenoh_settings))

@@ -8,8 +8,11 @@ die and restart at any time, and the router may restart too (clients reconnect t
 
 Loopback only by default: ``host`` must be a loopback address unless ``allow_remote`` is
 given, and never a wildcard or multicast address. Multicast scouting is always off and every
-endpoint explicit. The settings are plain ``path -> JSON value`` dicts (pure, so tests can
-read them) turned into a :class:`zenoh.Config` by :func:`build_zenoh_config`.
+endpoint explicit. With :class:`Tls` the links are Zenoh's ``tls/`` ones (the router's
+certificate checked by every client, and the clients' by the router where it asks for them):
+what a session carries off the machine, passwords and commands among it, is then encrypted.
+The settings are plain ``path -> JSON value`` dicts (pure, so tests can read them) turned
+into a :class:`zenoh.Config` by :func:`build_zenoh_config`.
 """
 
 from __future__ import annotations
@@ -19,6 +22,9 @@ import ipaddress
 import json
 import re
 import socket
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
@@ -93,6 +99,38 @@ def check_host(value: object, *, allow_remote: bool, name: str = "zenoh host") -
     return bare
 
 
+LOOPBACK_NAMES: Final = ("localhost", "127.0.0.1", "::1")
+"""The names and addresses of this machine a local client uses."""
+
+
+def served_hosts(listen: str, names: Sequence[str] = ()) -> list[str]:
+    """The hosts a request to a server of ours may name (its ``Host``): loopback's, the
+    address it listens on and ``names`` (``--allow-host``); lower case, IPv6 literals
+    without brackets. A request naming another was meant for another site (DNS rebinding)."""
+    hosts = [*LOOPBACK_NAMES, listen, *names]
+    return list(dict.fromkeys(host.strip().strip("[]").lower() for host in hosts))
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (an address or a name) is this machine's loopback."""
+    bare = host.strip().removeprefix("[").removesuffix("]")
+    try:
+        return ipaddress.ip_address(bare).is_loopback
+    except ValueError:
+        return bare.lower() == "localhost"
+
+
+def warn_in_clear(program: str, what: str) -> None:
+    """Say on stderr that ``what`` leaves this machine unencrypted (an address off loopback
+    without TLS), and what to do about it."""
+    print(
+        f"{program}: warning: {what} cross the network in clear (no TLS); anyone on the way "
+        "can read them: use TLS (scara-certs makes a set; docs/bridge.md, 'Remote operators')",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def check_port(port: object) -> int:
     """A TCP port number, 1..65535."""
     if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
@@ -100,11 +138,86 @@ def check_port(port: object) -> int:
     return port
 
 
-def endpoint(host: str, port: int) -> str:
-    """A Zenoh TCP locator; IPv6 literals go in brackets."""
+TLS_SETTINGS: Final = "transport/link/tls/"
+
+
+@dataclass(frozen=True, slots=True)
+class Tls:
+    """The files of one side of Zenoh's ``tls/`` links (PEM; ``scara-certs`` makes a set).
+
+    A client: ``ca`` is the authority that signed the router's certificate (required), and
+    ``certificate`` with ``key`` its own, for a router that asks for one (mutual TLS). A
+    router: ``certificate`` and ``key`` are its own (required), and ``ca``, if given, the
+    authority every client's certificate must be signed by (mutual TLS).
+    """
+
+    ca: Path | None = None
+    certificate: Path | None = None
+    key: Path | None = None
+
+    @classmethod
+    def of(cls, ca: object, certificate: object, key: object, side: str) -> Tls | None:
+        """The files given (paths, or None), checked for ``side`` (:meth:`check`); None
+        where none is: a plain ``tcp/`` link."""
+        files = [None if name is None else Path(str(name)) for name in (ca, certificate, key)]
+        if all(name is None for name in files):
+            return None
+        return cls(*files).check(side)
+
+    @property
+    def mutual(self) -> bool:
+        """A client that shows a certificate, or a router that asks for one."""
+        return self.certificate is not None and self.ca is not None
+
+    def check(self, side: str) -> Tls:
+        """Itself, once every file it names can be read and ``side`` (``client`` or
+        ``router``) has what it needs; ``can.CanInitializationError`` naming the file."""
+        if (self.certificate is None) != (self.key is None):
+            raise can.CanInitializationError(
+                "TLS: a certificate goes with its private key: give both, or neither"
+            )
+        if side == "client" and self.ca is None:
+            raise can.CanInitializationError(
+                "TLS: a client needs the CA that signed the router's certificate"
+            )
+        if side == "router" and self.certificate is None:
+            raise can.CanInitializationError("TLS: a router needs its certificate and key")
+        for path in (self.ca, self.certificate, self.key):
+            if path is not None and not Path(path).is_file():
+                raise can.CanInitializationError(f"TLS: no such file: {path}")
+        return self
+
+    def client_settings(self) -> dict[str, Any]:
+        """Zenoh's settings of a client's TLS link."""
+        settings: dict[str, Any] = {TLS_SETTINGS + "root_ca_certificate": str(self.ca)}
+        if self.mutual:
+            settings |= {
+                TLS_SETTINGS + "enable_mtls": True,
+                TLS_SETTINGS + "connect_certificate": str(self.certificate),
+                TLS_SETTINGS + "connect_private_key": str(self.key),
+            }
+        return settings
+
+    def router_settings(self) -> dict[str, Any]:
+        """Zenoh's settings of a router's TLS listener."""
+        settings: dict[str, Any] = {
+            TLS_SETTINGS + "listen_certificate": str(self.certificate),
+            TLS_SETTINGS + "listen_private_key": str(self.key),
+        }
+        if self.mutual:
+            settings |= {
+                TLS_SETTINGS + "enable_mtls": True,
+                TLS_SETTINGS + "root_ca_certificate": str(self.ca),
+            }
+        return settings
+
+
+def endpoint(host: str, port: int, tls: bool = False) -> str:
+    """A Zenoh TCP (or, with ``tls``, TLS) locator; IPv6 literals go in brackets."""
+    scheme = "tls" if tls else "tcp"
     if ":" in host:
-        return f"tcp/[{host}]:{port}"
-    return f"tcp/{host}:{port}"
+        return f"{scheme}/[{host}]:{port}"
+    return f"{scheme}/{host}:{port}"
 
 
 def _common(mode: str) -> dict[str, Any]:
@@ -116,29 +229,42 @@ def _common(mode: str) -> dict[str, Any]:
 
 
 def client_config(
-    host: str, port: int, user: str | None = None, password: str | None = None
+    host: str,
+    port: int,
+    user: str | None = None,
+    password: str | None = None,
+    tls: Tls | None = None,
 ) -> dict[str, Any]:
     """A bus (or a bridge, a monitor): client of the router at ``host:port``, listening on
-    nothing; ``user`` and ``password`` for a router that authenticates its clients."""
+    nothing; ``user`` and ``password`` for a router that authenticates its clients; ``tls``
+    for a router that listens on a ``tls/`` link."""
     host = check_host(host, allow_remote=True)  # a guard: never a wildcard or a group
     settings = _common("client") | {
         "listen/endpoints": [],
-        "connect/endpoints": [endpoint(host, port)],
+        "connect/endpoints": [endpoint(host, port, tls=tls is not None)],
     }
     if user is not None:
         settings |= {"transport/auth/usrpwd/user": user, "transport/auth/usrpwd/password": password}
+    if tls is not None:
+        settings |= tls.client_settings()
     return settings
 
 
-def router_config(host: str, port: int, connect: list[str] | None = None) -> dict[str, Any]:
-    """The router: listens on ``host:port`` only; ``connect`` links it to other routers."""
+def router_config(
+    host: str, port: int, connect: list[str] | None = None, tls: Tls | None = None
+) -> dict[str, Any]:
+    """The router: listens on ``host:port`` only (on a ``tls/`` link only, with ``tls``);
+    ``connect`` links it to other routers."""
     host = check_host(host, allow_remote=True)
-    return _common("router") | {
+    settings = _common("router") | {
         "scouting/gossip/enabled": False,
-        "listen/endpoints": [endpoint(host, port)],
+        "listen/endpoints": [endpoint(host, port, tls=tls is not None)],
         "listen/exit_on_failure": True,
         "connect/endpoints": list(connect or []),
     }
+    if tls is not None:
+        settings |= tls.router_settings()
+    return settings
 
 
 def build_zenoh_config(settings: dict[str, Any], base: str | None = None) -> zenoh.Config:
@@ -165,11 +291,14 @@ def router_reachable(
     port: int = DEFAULT_PORT,
     user: str | None = None,
     password: str | None = None,
+    tls: Tls | None = None,
 ) -> bool:
     """True if a Zenoh router answers at ``host:port`` now (opens and closes a client), and
-    lets ``user`` in if one is given (a secure router refuses a session without one)."""
+    lets ``user`` in if one is given (a secure router refuses a session without one), over a
+    ``tls/`` link with ``tls``."""
     try:
-        session = zenoh.open(build_zenoh_config(client_config(host, port, user, password)))
+        settings = client_config(host, port, user, password, tls)
+        session = zenoh.open(build_zenoh_config(settings))
     except zenoh.ZError:
         return False
     try:

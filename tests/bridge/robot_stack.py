@@ -172,16 +172,29 @@ class Stack:
         return found
 
 
-def start_router(processes: Processes, *args: str, name: str, user: str | None = None) -> int:
-    """Start a router on a free port; wait until it answers (as ``user``, if it needs one)."""
+def start_router(
+    processes: Processes,
+    *args: str,
+    name: str,
+    user: str | None = None,
+    ca: Path | None = None,
+    client: Path | None = None,
+) -> int:
+    """Start a router on a free port; wait until it answers (as ``user``, if it needs one;
+    over TLS with the CA ``ca``, showing the client certificate of the ``scara-certs`` set
+    ``client`` to a router that asks for one)."""
     port = free_port()
     router = processes.start("protocol.zenoh_can.router", "--port", str(port), *args, name=name)
+    shown: dict[str, Path] = {}
+    if client is not None:
+        shown = {"certificate": client / "client.pem", "key": client / "client-key.pem"}
 
     def answers() -> bool:
-        if user is None:
+        if user is None and ca is None:
             return router_reachable("127.0.0.1", port)
+        password = None if user is None else PASSWORDS[user]
         try:
-            session = open_client(port, user, PASSWORDS[user])
+            session = open_client(port, user, password, ca=ca, **shown)
         except zenoh.ZError:
             return False
         try:

@@ -5,17 +5,14 @@ the Foxglove app does, without it."""
 from __future__ import annotations
 
 import base64
-import contextlib
 import json
 import math
-import struct
-import threading
-from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
 
 import jsonschema
 import pytest
+from foxglove_client import FoxgloveClient
 from robot_stack import REFERENCE, RUN_TIME, START, Stack, start_router
 from support import (
     ROOT,
@@ -26,9 +23,6 @@ from support import (
     read_foxglove,
     wait_until,
 )
-from websockets.exceptions import ConnectionClosed
-from websockets.sync.client import ClientConnection, connect
-from websockets.typing import Subprotocol
 
 from bridge.commands import TASK_COMMANDS, edit_task, parse_payload
 from bridge.node import build_parser, foxglove_from_args
@@ -37,103 +31,6 @@ from controller.planner import load_planned
 from protocol.config import RobotConfig
 from protocol.keys import COMMANDS, STATE_KEYS, schema
 from protocol.kinematics import forward
-
-SUBPROTOCOL = Subprotocol("foxglove.sdk.v1")
-MESSAGE_DATA = 1
-SERVICE_CALL_REQUEST = 2
-SERVICE_CALL_RESPONSE = 3
-HEAD = struct.Struct("<BIQ")
-"""A message frame's head: opcode, subscription ID, log time (ns)."""
-CALL = struct.Struct("<BIII")
-"""A service call's or response's head: opcode, service ID, call ID, encoding's length."""
-
-
-class FoxgloveClient:
-    """One connection to a Foxglove WebSocket server: what it advertises, every message of
-    the channels subscribed to, and service calls answered or failed."""
-
-    def __init__(self, port: int) -> None:
-        self._closing = contextlib.ExitStack()
-        self.socket: ClientConnection = self._closing.enter_context(
-            connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], open_timeout=10)
-        )
-        assert self.socket.subprotocol == SUBPROTOCOL
-        self.server_info: dict[str, Any] = {}
-        self.channels: dict[int, dict[str, Any]] = {}
-        self.services: dict[str, dict[str, Any]] = {}
-        self.messages: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
-        self._subscribed: dict[int, str] = {}
-        self._answers: dict[int, tuple[bool, Any]] = {}
-        self._lock = threading.Lock()
-        self._calls = 0
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        try:
-            for frame in self.socket:
-                if isinstance(frame, str):
-                    self._on_text(json.loads(frame))
-                else:
-                    self._on_binary(frame)
-        except ConnectionClosed:
-            pass
-
-    def _on_text(self, message: dict[str, Any]) -> None:
-        with self._lock:
-            if message["op"] == "serverInfo":
-                self.server_info = message
-            elif message["op"] == "advertise":
-                self.channels.update((channel["id"], channel) for channel in message["channels"])
-            elif message["op"] == "advertiseServices":
-                self.services.update((s["name"], s) for s in message["services"])
-            elif message["op"] == "serviceCallFailure":
-                self._answers[message["callId"]] = (False, message["message"])
-
-    def _on_binary(self, frame: bytes) -> None:
-        with self._lock:
-            if frame[0] == MESSAGE_DATA:
-                _, subscription, log_time = HEAD.unpack_from(frame)
-                self.messages[self._subscribed[subscription]].append((log_time, frame[HEAD.size :]))
-            elif frame[0] == SERVICE_CALL_RESPONSE:
-                _, _, call, length = CALL.unpack_from(frame)
-                encoding = frame[CALL.size : CALL.size + length]
-                assert encoding == b"json"
-                self._answers[call] = (True, json.loads(frame[CALL.size + length :]))
-
-    def subscribe_all(self) -> None:
-        """Every channel advertised so far, subscription ``i`` to the ``i``-th."""
-        with self._lock:
-            self._subscribed = {i: c["topic"] for i, c in enumerate(self.channels.values())}
-            subscriptions = [
-                {"id": i, "channelId": channel_id} for i, channel_id in enumerate(self.channels)
-            ]
-        self.socket.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
-
-    def of(self, topic: str) -> list[tuple[int, bytes]]:
-        with self._lock:
-            return list(self.messages[topic])
-
-    def json_of(self, topic: str) -> list[dict[str, Any]]:
-        return [json.loads(data) for _, data in self.of(topic)]
-
-    def call(self, name: str, body: Any = None, timeout: float = 10.0) -> tuple[bool, Any]:
-        """Call service ``name`` with ``body`` as JSON; ``(True, response)`` or ``(False,
-        the failure's message)``."""
-        with self._lock:
-            self._calls += 1
-            call = self._calls
-            service = self.services[name]["id"]
-        payload = b"" if body is None else json.dumps(body).encode()
-        head = CALL.pack(SERVICE_CALL_REQUEST, service, call, len(b"json"))
-        self.socket.send(head + b"json" + payload)
-        wait_until(lambda: call in self._answers, timeout, f"the answer to {name}")
-        with self._lock:
-            return self._answers.pop(call)
-
-    def close(self) -> None:
-        self._closing.close()
-        self._reader.join(5)
 
 
 @pytest.fixture
@@ -290,10 +187,12 @@ def test_without_foxglove_commands_the_server_is_read_only(
     wait_until(lambda: len(client.channels) == len(STATE_KEYS) + 2, 10.0, "the channels")
     assert client.services == {}
     assert "services" not in client.server_info["capabilities"]
-    # the kernel agrees: the bridge listens on the Foxglove port, on loopback, and nothing else
+    # the kernel agrees: the bridge listens on loopback only, on the Foxglove port and on the
+    # SDK's own behind it (TLS no browser trusts: tests/attack), and nothing else
     listening = listening_sockets(bridge.pid)
     if listening is not None:
-        assert listening == [("127.0.0.1", port)], listening
+        assert ("127.0.0.1", port) in listening and len(listening) == 2, listening
+        assert {host for host, _ in listening} == {"127.0.0.1"}, listening
 
 
 @pytest.mark.parametrize(
@@ -350,3 +249,31 @@ def test_the_shipped_layout_shows_what_is_served_and_its_buttons_send_commands_t
         if name in TASK_COMMANDS:  # the task the buttons make is one the controller takes
             task = edit_task(name, body, task, base)
     assert task is not None and task.obstacle is not None and task.mode.value == "conventional"
+
+
+@pytest.mark.parametrize(
+    ("given", "taken"),
+    [
+        ([], ("https://app.foxglove.dev",)),
+        (
+            ["http://localhost:8080", "https://studio.example"],
+            ("http://localhost:8080", "https://studio.example"),
+        ),
+    ],
+)
+def test_foxglove_takes_the_app_s_origin_unless_told_which(
+    given: list[str], taken: tuple[str, ...]
+) -> None:
+    flags = [part for origin in given for part in ("--foxglove-allow-origin", origin)]
+    settings = foxglove_from_args(build_parser().parse_args(["--foxglove-port", "8765", *flags]))
+    assert settings is not None and settings.origins == taken
+
+
+@pytest.mark.parametrize(
+    "origin", ["app.foxglove.dev", "https://app.foxglove.dev/", "*", "ftp://x"]
+)
+def test_an_allowed_origin_that_is_not_one_is_refused_naming_it(origin: str) -> None:
+    args = build_parser().parse_args(["--foxglove-port", "8765", "--foxglove-allow-origin", origin])
+    with pytest.raises(ValueError, match="is not an origin") as refused:
+        foxglove_from_args(args)
+    assert repr(origin) in str(refused.value)

@@ -3,18 +3,21 @@ and its ``--json`` lines against a real bridge on the secure router."""
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 import jsonschema
+import pytest
 from robot_stack import PASSWORDS, ROBOT, START, Stack
 from support import SLOWDOWN
 
 from bridge.monitor import MonitorApp, MonitorModel
-from bridge.session import ZenohEndpoint
+from bridge.session import ZenohEndpoint, add_zenoh_arguments, endpoint_from_args
 from protocol.keys import schema
 from protocol.scenario import load_scenario, task_document
 
@@ -125,3 +128,18 @@ def test_json_lines_for_scripts_with_a_read_only_user(make_stack: Any) -> None:
         jsonschema.validate(line["payload"], schema(line["key"]))
         assert line["received"] >= line["payload"].get("t", 0)
     assert {"joints", "tcp", "status"} <= {line["key"] for line in lines}
+
+
+@pytest.mark.parametrize(("tls", "warned"), [([], True), (["--zenoh-tls-ca", "CA"], False)])
+def test_a_router_off_loopback_without_tls_is_warned_of(
+    tls: list[str], warned: bool, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    parser = argparse.ArgumentParser()
+    add_zenoh_arguments(parser)
+    (tmp_path / "CA").write_text("PEM")
+    tls = [str(tmp_path / part) if part == "CA" else part for part in tls]
+    args = parser.parse_args(["--zenoh-host", "192.0.2.7", "--allow-remote", *tls])
+    endpoint = endpoint_from_args(args, "scara-monitor")
+    warning = capsys.readouterr().err
+    assert ("scara-monitor: warning" in warning and "in clear" in warning) is warned, warning
+    assert str(endpoint).startswith("tls/") is not warned

@@ -1,7 +1,8 @@
 """Across hosts: the robot (routers, plant, controller, bridge) in one network namespace, an
 operator's machine in another, joined by a veth pair that the test creates. The secure
-router listens on the robot's veth address; the operator is a plain Zenoh client written
-here, in its own process inside the operator's namespace.
+router listens on the robot's veth address, in clear or on a TLS link only (mutual TLS: the
+operator shows a client certificate of the same ``scara-certs`` set); the operator is a plain
+Zenoh client written here, in its own process inside the operator's namespace.
 
 Needs root and iproute2 (``ip netns``); skipped where they are missing.
 """
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 
 import pytest
 from robot_stack import COMMS, PASSWORDS, REPO, ROBOT, SECURE_CONFIG, START
-from support import SLOWDOWN, Processes, free_port
+from support import SLOWDOWN, Processes, free_port, make_certificates
 
 from protocol.scenario import load_scenario, task_document
 
@@ -27,12 +28,18 @@ DESK_ADDRESS = "10.231.7.2"
 
 OPERATOR = """
 import json, sys, threading, time, zenoh
-robot_address, port, password, robot, task, patience, slowdown = sys.argv[1:8]
+robot_address, port, password, robot, task, patience, slowdown, tls = sys.argv[1:9]
 slowdown = float(slowdown)  # SCARA_TEST_SLOWDOWN: every bound below is stretched by it
 task = json.loads(task)
 config = zenoh.Config()
 config.insert_json5("mode", '"client"')
-config.insert_json5("connect/endpoints", json.dumps([f"tcp/{robot_address}:{port}"]))
+scheme = "tls" if tls else "tcp"
+config.insert_json5("connect/endpoints", json.dumps([f"{scheme}/{robot_address}:{port}"]))
+if tls:  # the router's certificate checked against the set's CA, the client's own shown
+    for name, file in (("root_ca_certificate", "ca.pem"), ("connect_certificate", "client.pem"),
+                       ("connect_private_key", "client-key.pem")):
+        config.insert_json5(f"transport/link/tls/{name}", json.dumps(f"{tls}/{file}"))
+    config.insert_json5("transport/link/tls/enable_mtls", "true")
 config.insert_json5("listen/endpoints", "[]")
 config.insert_json5("scouting/multicast/enabled", "false")
 config.insert_json5("scouting/gossip/enabled", "false")
@@ -122,32 +129,43 @@ def hosts() -> Iterator[Hosts]:
             subprocess.run(["ip", "netns", "del", namespace], capture_output=True)
 
 
+@pytest.mark.parametrize("link", ["tcp", "mtls"])
 def test_an_operator_on_another_host_runs_the_arm_through_the_secure_router(
-    hosts: Hosts, processes: Processes
+    hosts: Hosts, processes: Processes, link: str
 ) -> None:
     can_port, zenoh_port = free_port(), free_port()
     bus = ["--interface", "zenoh", "--channel", "robot", "--bus-option", f"port={can_port}"]
+    tls = ""
+    router_tls: list[str] = []
+    bridge_tls: list[str] = []
+    if link == "mtls":
+        certs = make_certificates(processes.folder / "certs", ROBOT_ADDRESS)
+        tls = str(certs)
+        router_tls = ["--tls-cert", f"{tls}/server.pem", "--tls-key", f"{tls}/server-key.pem"]
+        router_tls += ["--tls-client-ca", f"{tls}/ca.pem"]
+        bridge_tls = ["--zenoh-tls-ca", f"{tls}/ca.pem", "--zenoh-tls-cert", f"{tls}/client.pem"]
+        bridge_tls += ["--zenoh-tls-key", f"{tls}/client-key.pem"]
     start = processes.start
     start("protocol.zenoh_can.router", "--port", str(can_port), prefix=hosts.robot, name="can")
-    start(
+    secure = start(
         "protocol.zenoh_can.router", "--host", ROBOT_ADDRESS, "--allow-remote",
-        "--port", str(zenoh_port), "--config", str(SECURE_CONFIG),
+        "--port", str(zenoh_port), "--config", str(SECURE_CONFIG), *router_tls,
         prefix=hosts.robot, name="secure-router",
     )  # fmt: skip
     start("plant_sim.node", *bus, prefix=hosts.robot, name="plant")
     start("controller.cli", *bus, *COMMS, prefix=hosts.robot, name="controller")
     password = processes.folder / "bridge.password"
     password.write_text(PASSWORDS["bridge"])
-    start(
+    bridge = start(
         "bridge.node", "--zenoh-host", ROBOT_ADDRESS, "--allow-remote",
         "--zenoh-port", str(zenoh_port), "--user", "bridge", "--password-file", str(password),
-        *bus, prefix=hosts.robot, name="bridge",
+        *bridge_tls, *bus, prefix=hosts.robot, name="bridge",
     )  # fmt: skip
 
     task = json.dumps(task_document(load_scenario("reference")))
     operator = subprocess.run(
         [*hosts.desk, sys.executable, "-c", OPERATOR, ROBOT_ADDRESS, str(zenoh_port),
-         PASSWORDS["operator"], ROBOT, task, str(START), str(SLOWDOWN)],
+         PASSWORDS["operator"], ROBOT, task, str(START), str(SLOWDOWN), tls],
         cwd=REPO, capture_output=True, text=True, timeout=(START + 90) * SLOWDOWN,
     )  # fmt: skip
     assert operator.returncode == 0, f"{operator.stderr}\n{processes.outputs()}"
@@ -157,11 +175,17 @@ def test_an_operator_on_another_host_runs_the_arm_through_the_secure_router(
     assert seen["events"][0] == "run_started" and seen["events"][-1] == "run_finished", seen
     assert "collision" not in seen["events"]
     assert seen["tcp"] > 300  # the arm's path reached the other host at 100 Hz
+    # in clear, the router and the bridge say what crosses the network so; over TLS, nothing
+    for process in (secure, bridge):
+        assert ("in clear" in process.output()) is (link == "tcp"), process.output()
 
-    # and the robot's routers are out of the operator's reach without credentials
-    refused = subprocess.run(
-        [*hosts.desk, sys.executable, "-c", OPERATOR, ROBOT_ADDRESS, str(zenoh_port),
-         "wrong", ROBOT, task, "3", str(SLOWDOWN)],
-        cwd=REPO, capture_output=True, text=True, timeout=60 * SLOWDOWN,
-    )  # fmt: skip
-    assert refused.returncode != 0 and "cannot open a session" in refused.stderr
+    # and the robot's routers are out of the operator's reach without credentials, and over
+    # TLS without the client certificate
+    attempts = [("wrong", tls)] + ([(PASSWORDS["operator"], "")] if tls else [])
+    for password_tried, tls_tried in attempts:
+        refused = subprocess.run(
+            [*hosts.desk, sys.executable, "-c", OPERATOR, ROBOT_ADDRESS, str(zenoh_port),
+             password_tried, ROBOT, task, "3", str(SLOWDOWN), tls_tried],
+            cwd=REPO, capture_output=True, text=True, timeout=60 * SLOWDOWN,
+        )  # fmt: skip
+        assert refused.returncode != 0 and "cannot open a session" in refused.stderr

@@ -4,7 +4,9 @@
   ``/usr/bin/chromium`` or Playwright is missing), one per module.
 - ``robot``: the robot as a service behind the secure router (``tests/bridge/robot_stack``),
   with two ``scara-gui`` servers on it, one logged in as ``operator``, one as ``monitor``;
-  one per module, so its tests leave the robot ready for the next.
+  one per module, so its tests leave the robot ready for the next; once on ``http`` and once
+  on ``https`` (a ``scara-certs`` set, ``certs``, whose server certificate the browser
+  trusts).
 - ``open_page(url)``: a new page of the browser on ``url``, once it has its first state.
 """
 
@@ -17,7 +19,15 @@ from typing import Any
 import pytest
 from gui_stack import Robot, start_gui
 from robot_stack import COMMS, PASSWORDS, SECURE_CONFIG, START, Stack, start_router
-from support import BROWSER_ARGS, CHROMIUM, VIEWPORT, Processes, wait_until
+from support import (
+    BROWSER_ARGS,
+    CHROMIUM,
+    VIEWPORT,
+    Processes,
+    make_certificates,
+    trusting,
+    wait_until,
+)
 
 TASK = Path(__file__).resolve().parent / "patient_reference.toml"
 """The robot's task at start: the reference with a long timeout (see the file)."""
@@ -44,17 +54,27 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 @pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
+def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_certificates(tmp_path_factory.mktemp("certs"))
+
+
+@pytest.fixture(scope="module")
+def browser(certs: Path) -> Iterator[Any]:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), args=BROWSER_ARGS)
+        chromium = playwright.chromium.launch(
+            executable_path=str(CHROMIUM), args=[*BROWSER_ARGS, trusting(certs / "server.pem")]
+        )
         yield chromium
         chromium.close()
 
 
-@pytest.fixture(scope="module")
-def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+@pytest.fixture(scope="module", params=["http", "https"])
+def robot(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory, certs: Path
+) -> Iterator[Robot]:
+    https = certs if request.param == "https" else None
     from robot_stack import open_client
 
     processes = Processes(tmp_path_factory.mktemp("processes"))
@@ -81,11 +101,11 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         login = ["--zenoh-port", str(zenoh_port)]
         operator = start_gui(
             processes, *login, "--user", "operator", "--password-file", str(passwords["operator"]),
-            name="gui-operator",
+            name="gui-operator", https=https,
         )  # fmt: skip
         monitor = start_gui(
             processes, *login, "--user", "monitor", "--password-file", str(passwords["monitor"]),
-            name="gui-monitor",
+            name="gui-monitor", https=https,
         )  # fmt: skip
         session = open_client(zenoh_port, "operator", PASSWORDS["operator"])
         stack.wait_ready(session)

@@ -221,6 +221,16 @@ def test_a_monitor_page_has_no_buttons_and_its_server_refuses_a_command(
     assert "read-only" in page.inner_text("#connection")
     for name in BUTTONS:
         assert page.is_disabled(f"[data-command={name}]"), name
+    # every control that edits the task disabled too, the task's own included (+ and x)
+    controls = "#left input, #left button, #left select, #right input, #right select"
+    enabled = page.eval_on_selector_all(
+        controls, "all => all.filter(c => !c.disabled).map(c => c.outerHTML)"
+    )
+    rows = page.locator("#waypoints tbody tr").count()
+    assert rows > 0 and enabled == [], enabled
+    box = page.locator("#top").bounding_box()
+    page.mouse.click(box["x"] + box["width"] * 0.7, box["y"] + box["height"] * 0.3)
+    assert page.locator("#waypoints tbody tr").count() == rows  # the mouse added no waypoint
     page.evaluate(
         "window.scara.socket.send(JSON.stringify({type: 'command', id: 7, name: 'run'}))"
     )  # what a page with its buttons enabled by hand would send

@@ -108,6 +108,20 @@ def test_the_server_listens_on_loopback_unless_told(
 
 
 @pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--https-cert", "server.pem"], "--https-cert and --https-key go together"),
+        (["--https-cert", "nowhere.pem", "--https-key", "key.pem"], "--https-cert nowhere.pem"),
+    ],
+)
+def test_https_needs_a_certificate_and_its_key_that_are_there(
+    args: list[str], said: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(args) == 2
+    assert said in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
     ("content", "said"),
     [
         (b"", "empty"),

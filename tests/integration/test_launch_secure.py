@@ -11,6 +11,7 @@ client in any language would open them: multicast scouting off, one explicit
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -29,6 +30,7 @@ from support import (
     Process,
     Processes,
     free_port,
+    make_certificates,
     open_client,
     wait_until,
 )
@@ -241,3 +243,66 @@ def test_serve_secure_refuses_credentials_it_cannot_use_before_starting_anything
     assert done.returncode == 2, (done.stdout, done.stderr)
     assert said in done.stderr and "Traceback" not in done.stderr, done.stderr
     assert not router_reachable("127.0.0.1", port)  # nothing was started
+
+
+def test_serve_secure_over_mutual_tls_lets_in_only_clients_of_the_set(
+    processes: Processes, credentials: Path, tmp_path: Path
+) -> None:
+    """``--tls DIR --mtls``: both routers on TLS links only, every process of the launcher
+    joining with the set's client certificate; a monitor process and an operator's session
+    that show it read and command, nothing joins in clear or without it."""
+    certs = make_certificates(tmp_path / "certs")
+    can_port, secure_port = free_port(), free_port()
+    launcher = processes.start(
+        "sim.launch", "reference", "--serve", "--secure", "--credentials", str(credentials),
+        "--secure-port", str(secure_port), "--comms-timeout", "0.5", "--out", str(tmp_path),
+        "--interface", "zenoh", "--channel", f"tls{can_port}", "--bus-option", f"port={can_port}",
+        "--tls", str(certs), "--mtls", name="scara-run",
+    )  # fmt: skip
+    shown = {
+        "ca": certs / "ca.pem",
+        "certificate": certs / "client.pem",
+        "key": certs / "client-key.pem",
+    }
+
+    def operator() -> zenoh.Session:
+        return open_client(secure_port, "operator", USERS["operator"], **shown)
+
+    def ready() -> bool:
+        assert launcher.poll() is None, processes.outputs()
+        try:
+            session = operator()
+        except zenoh.ZError:
+            return False
+        try:
+            status = latest(session, "status", timeout=1.0)
+            return bool(status and status["controller"]["state"] == "ready")
+        finally:
+            session.close()  # type: ignore[no-untyped-call]
+
+    wait_until(ready, START, "a ready controller behind the TLS router")
+    assert f"--zenoh-tls-ca {certs / 'ca.pem'}" in launcher.output()
+    monitor = subprocess.run(
+        [sys.executable, "-m", "bridge.monitor", "--zenoh-port", str(secure_port),
+         "--zenoh-tls-ca", str(certs / "ca.pem"), "--zenoh-tls-cert", str(certs / "client.pem"),
+         "--zenoh-tls-key", str(certs / "client-key.pem"), "--user", "monitor",
+         "--json", "--count", "3"],
+        env={**os.environ, "SCARA_ZENOH_PASSWORD": USERS["monitor"]},
+        capture_output=True, text=True, timeout=60 * SLOWDOWN, cwd=ROOT,
+    )  # fmt: skip
+    assert monitor.returncode == 0, monitor.stderr
+    assert len(monitor.stdout.splitlines()) == 3 and "in clear" not in monitor.stderr
+    session = operator()
+    try:
+        replies = ask(session, f"scara/{ROBOT}/cmd/mode", {"mode": "conventional"})
+        assert [json.loads(r.ok.payload.to_bytes()) for r in replies] == [
+            {"accepted": True, "reason": "none"}
+        ]
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
+    for port in (can_port, secure_port):  # in clear, or without the client's certificate
+        assert not logs_in(port, "operator", USERS["operator"])
+        with pytest.raises(zenoh.ZError):
+            open_client(port, "operator", USERS["operator"], ca=certs / "ca.pem")
+    launcher.signal(signal.SIGINT)
+    assert launcher.wait(30.0) == 0, launcher.output()
