@@ -31,7 +31,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
-from protocol.zenoh_can.config import LOOPBACK_NAMES
+from protocol.zenoh_can.config import LOOPBACK_NAMES, Tls
 
 DEFAULT_OUT = Path("certs")
 CA, SERVER, CLIENT = "ca", "server", "client"
@@ -49,6 +49,15 @@ class CertificateSet:
 
     def key(self, stem: str) -> Path:
         return self.folder / f"{stem}-key.pem"
+
+    def tls(self, side: str, *, mutual: bool) -> Tls:
+        """The set as a ``client``'s or a ``router``'s TLS files (:class:`Tls`); ``mutual``:
+        the client shows its certificate, the router asks for one."""
+        ca = self.certificate(CA)
+        if side == "client":
+            shown = (self.certificate(CLIENT), self.key(CLIENT)) if mutual else (None, None)
+            return Tls(ca, *shown)
+        return Tls(ca if mutual else None, self.certificate(SERVER), self.key(SERVER))
 
     def files(self) -> list[Path]:
         return [

@@ -34,7 +34,7 @@ from tqdm import tqdm
 
 from controller.planner import load_planned
 from protocol.bus import add_bus_arguments, parse_options, resolve_transport
-from protocol.certs import CA, CLIENT, SERVER, CertificateSet
+from protocol.certs import CertificateSet
 from protocol.cli import (
     add_comms_timeout_argument,
     add_verbosity,
@@ -205,30 +205,12 @@ def tls_of(args: argparse.Namespace, side: str) -> Tls | None:
     """The TLS files of ``--tls DIR`` for a ``client`` or a ``router`` (None without it)."""
     if args.tls is None:
         return None
-    files = CertificateSet(args.tls)
-    mutual = args.mtls
-    if side == "client":
-        return Tls(
-            files.certificate(CA),
-            files.certificate(CLIENT) if mutual else None,
-            files.key(CLIENT) if mutual else None,
-        )
-    return Tls(
-        files.certificate(CA) if mutual else None, files.certificate(SERVER), files.key(SERVER)
-    )
-
-
-def tls_named(tls: Tls | None, names: tuple[str, str, str]) -> list[tuple[str, str]]:
-    """``tls``'s files, each with the name ``names`` gives it (CA, certificate, key)."""
-    if tls is None:
-        return []
-    given = zip(names, (tls.ca, tls.certificate, tls.key), strict=True)
-    return [(name, str(path)) for name, path in given if path is not None]
+    return CertificateSet(args.tls).tls(side, mutual=args.mtls)
 
 
 def tls_flags(tls: Tls | None, flags: tuple[str, str, str]) -> list[str]:
     """``tls``'s files as the command-line flags ``flags`` (CA, certificate, key) name them."""
-    return [part for pair in tls_named(tls, flags) for part in pair]
+    return [] if tls is None else [part for pair in tls.named(flags) for part in pair]
 
 
 ROUTER_TLS_FLAGS = ("--tls-client-ca", "--tls-cert", "--tls-key")
@@ -456,8 +438,11 @@ def check_tls(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None
             tls.check(side)
         except can.CanInitializationError as error:
             raise ScaraError(f"--tls {args.tls}: {error} (make a set with scara-certs)") from None
-    given = tls_named(tls_of(args, "client"), ("tls_ca", "tls_cert", "tls_key"))
-    args.bus_option += [f"{option}={path}" for option, path in given]
+    client = tls_of(args, "client")
+    assert client is not None
+    args.bus_option += [
+        f"{o}={path}" for o, path in client.named(("tls_ca", "tls_cert", "tls_key"))
+    ]
 
 
 def check_secure(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict[str, str]:

@@ -164,6 +164,12 @@ class Tls:
             return None
         return cls(*files).check(side)
 
+    def named(self, names: tuple[str, str, str]) -> list[tuple[str, str]]:
+        """Its files, each with the name ``names`` gives it (CA, certificate, key): a
+        command's flags, a bus's options."""
+        given = zip(names, (self.ca, self.certificate, self.key), strict=True)
+        return [(name, str(path)) for name, path in given if path is not None]
+
     @property
     def mutual(self) -> bool:
         """A client that shows a certificate, or a router that asks for one."""
