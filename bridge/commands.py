@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from controller.planner import check_plan
+from controller.task_rules import accept
 from protocol.errors import ConfigError, ScaraError
 from protocol.messages import reason_of
-from protocol.scenario import Scenario, parse_task, task_document
+from protocol.scenario import Scenario, task_document
 from protocol.validation import SUFFIX, check, read_json
 
 TASK_COMMANDS = ("waypoints", "obstacle", "mode")
@@ -87,8 +87,7 @@ def edit_task(
     else:
         document["mode"] = body["mode"]
     try:
-        task = parse_task(document, base)
-        check_plan(task)
+        task = accept(document, base)
     except ConfigError as error:
         reason = reason_of(error).name.lower()
         raise RefusedError(

@@ -50,7 +50,7 @@ from bridge.operator import ANSWER_TIMEOUT, Answer, OperatorNode, Reply
 from bridge.rate import RateLimit, StartOfMotion
 from bridge.session import add_zenoh_arguments, endpoint_from_args
 from bridge.view import Event
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from protocol.bus import add_bus_arguments, open_bus_from_args
 from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
 from protocol.errors import ScaraError
@@ -508,7 +508,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     yield_to_the_nodes()
     try:
         robot = check_robot(args.robot)
-        base = load_planned(args.scenario) if args.scenario else Scenario("bridge", (), None)
+        base = load_task(args.scenario) if args.scenario else Scenario("bridge", (), None)
         endpoint = endpoint_from_args(args, "scara-bridge")
         foxglove = foxglove_from_args(args)
         bus = open_bus_from_args(args)

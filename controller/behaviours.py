@@ -23,6 +23,12 @@ PLANNED_REST_SPEED = 0.005
 """m/s: below this the plan is taken to stand still and PT aims at the planned point."""
 AHEAD_SPEED_FRACTION = 0.25
 """A TCP ahead of the moving plan slows down to this fraction of the planned speed."""
+AIM_SPARE = 0.0015
+"""m: the way AO steers round passes this near a waypoint nearer the inflated obstacle than
+AO's pass margin and this (:func:`aim_margin`): within the 1.9 mm that pass it ..."""
+AIM_SHARE = 0.5
+"""... or halfway between the waypoint and the obstacle, for a waypoint nearer than twice
+AIM_SPARE."""
 
 
 class Command(NamedTuple):
@@ -33,6 +39,15 @@ class Command(NamedTuple):
 
 
 STOP = Command(0.0, 0.0)
+
+
+def aim_margin(pass_margin: float, room: float) -> float:
+    """How far outside the inflated obstacle AO steers round on the way to a waypoint whose
+    free room (its clearance from the inflated obstacle, :func:`controller.obstacle.free_room`)
+    is ``room``: the pass margin, less for a waypoint inside it, which the way round must
+    leave outside: AO going round at the full margin would circle such a waypoint for ever.
+    Unchanged for a waypoint ``pass_margin + AIM_SPARE`` or more away."""
+    return min(pass_margin, max(AIM_SHARE * room, room - AIM_SPARE))
 
 
 def plan_tracking(

@@ -12,8 +12,8 @@ import argparse
 from collections.abc import Sequence
 
 from controller.node import COMMS_TIMEOUT, STALE_TICKS, ControllerNode
-from controller.planner import load_planned
 from controller.service import ServiceNode
+from controller.task_rules import load_task
 from protocol.cli import add_comms_timeout_argument, number, quiet_on_closed_pipe
 from protocol.errors import ConfigError
 from protocol.node import ClockMode, NodeSetup, add_node_arguments, node_main
@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def load(source: str | None) -> Scenario:
     """The scenario to run, or without one the service's robot and gains (the defaults)."""
-    return load_planned(source) if source else Scenario("service", (), None)
+    return load_task(source) if source else Scenario("service", (), None)
 
 
 def make(setup: NodeSetup) -> ControllerNode:

@@ -18,12 +18,17 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
-from controller.behaviours import PLANNED_REST_SPEED, Command, avoid_obstacle, plan_tracking
+from controller.behaviours import (
+    PLANNED_REST_SPEED,
+    Command,
+    aim_margin,
+    avoid_obstacle,
+    plan_tracking,
+)
 from controller.coordination import Coordination, smoothstep, weights
-from controller.obstacle import NO_OBSTACLE, ObstacleMeasurement, sense
+from controller.obstacle import NO_OBSTACLE, ObstacleMeasurement, free_room, sense
 from controller.planner import Trajectory, cubic, plan_of
 from controller.safety import Limits, barrier, box, filtered, limits_of
 from protocol.config import ControllerConfig, RobotConfig
@@ -55,9 +60,10 @@ brakes or starts harder than the arm can follow (an arm overshooting a waiting r
 would have to turn back: a stop)."""
 CLEAR_WAY = 0.01
 """m: AO gives way once the obstacle is this much farther from the TCP than the waypoint it
-heads for (:func:`_at_waypoint`): AO would only take the arm round an obstacle beyond it."""
-ROOM_MAX = 0.05
-"""m: the free room around a waypoint (:func:`_free_room`) is at most this."""
+heads for (:func:`_at_waypoint`): AO would only take the arm round an obstacle beyond it. At
+most the waypoint's free room: a waypoint nearer the obstacle lies just in front of it, and
+an arm coming straight at it must be handed to PT before AO turns it along the obstacle
+(which took it past the waypoint and round the obstacle again and again)."""
 HEIGHT_LEAD = (0.01, 0.02)
 """m: how much nearer the next waypoint than the reference the TCP is when the height loop
 starts to lead (:func:`height_lead`), and when it leads in full. Led from the first
@@ -72,8 +78,11 @@ large share of the way there) and the peak jerk of open runs rose."""
 LOOP_RADIUS = 0.003
 """m: the radius of the circle the final approach takes an arm round, when the straight way
 onto the waypoint would point against the plan (:func:`final_approach`): more than PASSED,
-and within 6 mm of the waypoint, well inside its free room (a waypoint is at least 20 mm
-clear of the inflated obstacle)."""
+and within 6 mm of the waypoint. At most LOOP_ROOM of the waypoint's free room, so that the
+circle keeps clear of the obstacle whichever side of the waypoint it lies on."""
+LOOP_ROOM = 1.0 / 3.0
+ROOM_FLOOR = 1e-4
+"""m: CLEAR_WAY and LOOP_RADIUS are never less, for a waypoint on the obstacle's edge."""
 LOOP_AGAINST = 0.5
 """How far the straight way onto a waypoint points against the plan's way out of it (the
 cosine of the angle between them, negated) where the final approach is a loop in full. From
@@ -111,8 +120,17 @@ class Stage(NamedTuple):
     """p_j's time."""
     time_before: Real
     room: Real
-    """p_j's free room (:func:`_free_room`)."""
+    """p_j's free room (:func:`controller.obstacle.free_room`)."""
     room_before: Real
+    aim: Section
+    """What AO steers round on the way to p_j: the inflated obstacle grown by
+    :func:`controller.behaviours.aim_margin`."""
+    clear_way: Real
+    """p_j's CLEAR_WAY (:func:`_at_waypoint`)."""
+    clear_way_before: Real
+    loop_radius: Real
+    """p_j's LOOP_RADIUS (:func:`final_approach`)."""
+    loop_radius_before: Real
     leaving: tuple[Real, Real]
     """The plan's way out of p_j (:func:`_leaving`)."""
     leaving_before: tuple[Real, Real]
@@ -144,8 +162,6 @@ class Law(NamedTuple):
     robot: RobotConfig
     config: ControllerConfig
     obstacle: Section
-    aim: Section
-    """The obstacle grown by ``ao_pass_margin``: what AO steers round."""
     fuzzy: Mask
     """Table 2's coordinator, else the conventional switch."""
     coordination: Coordination
@@ -195,6 +211,9 @@ class ControlOutput(NamedTuple):
     no_safe_motion: Mask
     """No command within the joint limits keeps the barrier (:mod:`controller.safety`): the
     controller faults and brakes."""
+    waited: Point3
+    """The waypoint the plan waits for: the first not yet passed (or p_j, once passed, until
+    the plan moves on): what a run's progress is judged by (:mod:`controller.run_end`)."""
 
 
 def law_of(
@@ -209,7 +228,6 @@ def law_of(
         robot,
         config,
         NO_OBSTACLE if obstacle is None else obstacle.section(),
-        NO_OBSTACLE if obstacle is None else obstacle.grown(config.ao_pass_margin).section(),
         fuzzy,
         coordination,
         reach_radii(robot)[1],
@@ -232,11 +250,20 @@ def first_state(trajectory: Trajectory) -> LawState:
     return LawState(heading, 0, (0.0, 0.0, 0.0), start, 1.0, start, 0)
 
 
-def stages_of(trajectory: Trajectory, obstacle: EllipticCylinder | None) -> tuple[Stage, ...]:
-    """The plan's stages: one per segment, then the rest at the final waypoint."""
+def stages_of(
+    trajectory: Trajectory, obstacle: EllipticCylinder | None, pass_margin: float
+) -> tuple[Stage, ...]:
+    """The plan's stages: one per segment, then the rest at the final waypoint
+    (``pass_margin``: AO's, ``ControllerConfig.ao_pass_margin``)."""
     times, points = trajectory.times, trajectory.points
     count = len(times)
-    rooms = [_free_room(obstacle, point) for point in points]
+    rooms = [free_room(obstacle, point) for point in points]
+    aims = [
+        NO_OBSTACLE if obstacle is None else obstacle.grown(aim_margin(pass_margin, room)).section()
+        for room in rooms
+    ]
+    clear_ways = [max(min(CLEAR_WAY, room), ROOM_FLOOR) for room in rooms]
+    loop_radii = [max(min(LOOP_RADIUS, LOOP_ROOM * room), ROOM_FLOOR) for room in rooms]
     leaving = [_leaving(trajectory, index) for index in range(count)]
     windows = []
     for start, end in itertools.pairwise(times):
@@ -273,6 +300,11 @@ def stages_of(trajectory: Trajectory, obstacle: EllipticCylinder | None) -> tupl
                 times[index - 1],
                 rooms[index],
                 rooms[index - 1],
+                aims[index],
+                clear_ways[index],
+                clear_ways[index - 1],
+                loop_radii[index],
+                loop_radii[index - 1],
                 leaving[index],
                 leaving[index - 1],
                 index < count - 1,
@@ -355,7 +387,7 @@ def step(
         ops,
         config,
         law.robot,
-        law.aim,
+        stage.aim,
         measurement,
         min_distance,
         side,
@@ -390,6 +422,7 @@ def step(
         ops.where(waiting_next, stage.leaving, stage.leaving_before),
         ops.where(waiting_next, to_next, to_before),
         tcp,
+        ops.where(waiting_next, stage.loop_radius, stage.loop_radius_before),
     )
     vx = vx + pull * (approach_x - vx)
     vy = vy + pull * (approach_y - vy)
@@ -439,6 +472,7 @@ def step(
         limited,
         progress,
         no_safe_motion,
+        waited,
     )
     return output, LawState(heading, side, command, progress, rate, t, reached)
 
@@ -543,8 +577,8 @@ def _at_waypoint(
     present = clearance < math.inf
     if ops.any(present):
         to_next, to_before = to_waypoints
-        clear_next = smoothstep(ops, (clearance - to_next) / CLEAR_WAY)
-        clear_before = smoothstep(ops, (clearance - to_before) / CLEAR_WAY)
+        clear_next = smoothstep(ops, (clearance - to_next) / stage.clear_way)
+        clear_before = smoothstep(ops, (clearance - to_before) / stage.clear_way_before)
         depth_next = ops.where(present, ops.max(depth_next, clear_next), depth_next)
         depth_before = ops.where(present, ops.max(depth_before, clear_before), depth_before)
     return ops.max(share * depth_next, (1.0 - share) * depth_before)
@@ -557,15 +591,16 @@ def final_approach(
     leaving: tuple[Real, Real],
     away: Real,
     tcp: Point3,
+    loop_radius: Real,
 ) -> tuple[Real, Real, Real]:
     """The planar velocity that brings the TCP onto the waypoint the plan waits for
     (``point``; ``away``: the TCP's plane distance to it; ``leaving``: the plan's way out of
-    it), and how far it is a loop, 0..1.
+    it; ``loop_radius``: its LOOP_RADIUS), and how far it is a loop, 0..1.
 
     Straight at the waypoint, ``gain`` times the way to it, wherever that way does not point
     against the plan's way out: an arm on the far side, brought straight back, would come
     onto the waypoint against the plan and have to turn round on it when the plan moved on (a
-    stop). There the arm goes round the circle of LOOP_RADIUS that touches the plan's way at
+    stop). There the arm goes round the circle of ``loop_radius`` that touches the plan's way at
     the waypoint on the arm's side, in the sense that comes round to the waypoint along the
     plan, at the same speed, until the straight way no longer points against the plan; it
     then comes in across the plan. The two hand over by the angle between the straight way
@@ -589,6 +624,7 @@ def final_approach(
         point,
         tcp,
         away,
+        loop_radius,
     )
 
 
@@ -601,18 +637,19 @@ def _loop(
     point: Point3,
     tcp: Point3,
     away: Real,
+    loop_radius: Real,
 ) -> tuple[Real, Real, Real]:
     """:func:`final_approach` where it is a loop, ``share`` of the way."""
     to_x, to_y = to_point
     out_x, out_y = leaving
     straight_x, straight_y = gain * to_x, gain * to_y
     side = ops.where(out_x * to_y - out_y * to_x <= 0.0, 1.0, -1.0)
-    radial_x = tcp[0] - (point[0] - side * LOOP_RADIUS * out_y)
-    radial_y = tcp[1] - (point[1] + side * LOOP_RADIUS * out_x)
+    radial_x = tcp[0] - (point[0] - side * loop_radius * out_y)
+    radial_y = tcp[1] - (point[1] + side * loop_radius * out_x)
     radius = length(ops, radial_x, radial_y)
     valid = radius != 0.0
     divisor = ops.where(valid, radius, 1.0)
-    off = (radius - LOOP_RADIUS) / LOOP_RADIUS
+    off = (radius - loop_radius) / loop_radius
     way_x = (-side * radial_y - off * radial_x) / divisor
     way_y = (side * radial_x - off * radial_y) / divisor
     speed = gain * away / ops.where(valid, length(ops, way_x, way_y), 1.0)
@@ -740,13 +777,6 @@ def _limit(ops: Ops, law: Law, wanted: Point3, previous: Point3) -> tuple[Point3
     return command, (scale < 1.0) | (step_scale < 1.0)
 
 
-def _free_room(obstacle: EllipticCylinder | None, point: Sequence[float]) -> float:
-    """The radius around a waypoint that the obstacle leaves free (at most ROOM_MAX)."""
-    if obstacle is None or point[2] >= obstacle.height + obstacle.inflation:
-        return ROOM_MAX
-    return min(max(obstacle.clearance(point[0], point[1]), 0.0), ROOM_MAX)
-
-
 def _leaving(trajectory: Trajectory, index: int) -> tuple[float, float]:
     """The plan's unit direction of travel in the plane at waypoint ``index``; (0, 0) at the
     first and last waypoint and where the plan passes slower than PLANNED_REST_SPEED: the
@@ -773,7 +803,7 @@ class ControlLaw:
         coordination: Coordination | None = None,
     ) -> None:
         self.trajectory = trajectory
-        self.stages = stages_of(trajectory, obstacle)
+        self.stages = stages_of(trajectory, obstacle, config.ao_pass_margin)
         coordination = coordination or Coordination.of(config.sensing_range, config.switch_distance)
         self.law = law_of(robot, config, obstacle, mode is Mode.FUZZY, coordination)
         self.reset()

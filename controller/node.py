@@ -43,7 +43,7 @@ import numpy as np
 from controller.behaviours import TURN_LEFT, TURN_RIGHT
 from controller.control_law import ControlLaw, ControlOutput
 from controller.loop_stats import LoopStats
-from controller.run_end import OUTCOMES, RunOutcome, ending, run_end_of
+from controller.run_end import OUTCOMES, UNWATCHED, RunOutcome, ending, run_end_of
 from controller.runlog import COLUMNS, RunLog, row_of
 from protocol.codec import MessageCodec
 from protocol.errors import ConfigError, EncodeError
@@ -226,6 +226,7 @@ class ControllerNode(Node):
         first waypoints were added to reach the task (not the task's own)."""
         self.scenario = scenario
         self.end = run_end_of(scenario)
+        self.watch = UNWATCHED
         self.ticks_to_run = self.end.end_tick + 1
         """Ticks of a run done on time (a late one goes on, up to its timeout)."""
         self.outcome = None
@@ -332,7 +333,7 @@ class ControllerNode(Node):
 
     def _control(self, state: JointState) -> ControlOutput:
         """One control step; a run that ends at it other than done latches the fault of its
-        outcome's name (TASK_TIMEOUT, NO_SAFE_MOTION)."""
+        outcome's name (TASK_TIMEOUT, NO_SAFE_MOTION, NO_PROGRESS)."""
         start = self.scenario.waypoints[0].t
         t = start + self.tick * self.period
         output = self.law.step(t, state.position)
@@ -340,7 +341,9 @@ class ControllerNode(Node):
         if self.log_rows is not None:  # always, once a run is prepared
             self.log_rows.append(row_of(t, state.position, state.velocity, output, clock))
         law = self.law.state
-        code = ending(SCALAR, self.end, law.reached, output, state.velocity, self.tick, self.slot)
+        code, self.watch = ending(
+            SCALAR, self.end, law.reached, output, state.velocity, self.tick, self.slot, self.watch
+        )
         if code:
             self.outcome = OUTCOMES[code - 1]
             if self.outcome is not RunOutcome.DONE:

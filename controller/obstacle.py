@@ -31,6 +31,7 @@ What DM reports, seen from the tool centre point (TCP) looking towards the next 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from functools import cache
 from typing import NamedTuple
 
@@ -47,6 +48,8 @@ from protocol.geometry import (
 )
 from protocol.ops import SCALAR, Mask, Ops, Real
 
+ROOM_MAX = 0.05
+"""m: the free room around a waypoint (:func:`free_room`) is at most this."""
 REACH_MARGIN = 1e-6
 """m: beyond the sensing range plus the long semi-axis (plus this, for rounding) from an
 obstacle's centre, the clearance exceeds the range: DM finds nothing, without measuring."""
@@ -217,3 +220,11 @@ def _sense_present(
         toward,
         to_nearest,
     )
+
+
+def free_room(obstacle: EllipticCylinder | None, point: Sequence[float]) -> float:
+    """The radius around a waypoint that the obstacle leaves free (at most ROOM_MAX): its
+    clearance from the inflated obstacle, where it is below the obstacle's top."""
+    if obstacle is None or point[2] >= obstacle.height + obstacle.inflation:
+        return ROOM_MAX
+    return min(max(obstacle.clearance(point[0], point[1]), 0.0), ROOM_MAX)

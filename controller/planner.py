@@ -10,7 +10,8 @@ Evaluation runs every control tick (100-1000 Hz), so it uses plain floats, one
 does the same arithmetic on numpy arrays of times, for checks and measures of a whole plan.
 
 This module is pure: no I/O, no clocks; the caller passes the time ``t``. :func:`plan_of`
-gives a scenario's plan and :func:`check_plan` checks that it stays in the workspace.
+gives a scenario's plan and :func:`check_plan` checks that it stays in the workspace and
+leaves a way round the obstacle (rules 5 and 6 of :mod:`controller.task_rules`).
 """
 
 from __future__ import annotations
@@ -20,12 +21,13 @@ import math
 from bisect import bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
+from controller.behaviours import aim_margin
 from controller.detour import ways_round
+from controller.obstacle import free_room
 from protocol.errors import (
     ConfigError,
     KinematicsError,
@@ -34,13 +36,12 @@ from protocol.errors import (
 )
 from protocol.kinematics import clearly_reachable, inverse
 from protocol.ops import Real
-from protocol.scenario import Scenario, load_scenario
+from protocol.scenario import Scenario
 
 __all__ = [
     "CubicSegment",
     "Trajectory",
     "check_plan",
-    "load_planned",
     "plan_of",
     "waypoint_velocities",
 ]
@@ -382,11 +383,12 @@ def check_plan(scenario: Scenario) -> None:
             ) from error
     if scenario.obstacle is None:
         return
-    aim = scenario.obstacle.grown(scenario.controller.ao_pass_margin)
+    obstacle, pass_margin = scenario.obstacle, scenario.controller.ao_pass_margin
     for segment, (here, there) in enumerate(itertools.pairwise(scenario.waypoints)):
+        room = free_room(obstacle, (there.x, there.y, there.z))
         ways = ways_round(
             scenario.robot,
-            aim,
+            obstacle.grown(aim_margin(pass_margin, room)),  # what AO steers round to there
             (here.x, here.y, here.z),
             (there.x, there.y, there.z),
             scenario.elbow,
@@ -396,11 +398,3 @@ def check_plan(scenario: Scenario) -> None:
                 f"waypoints[{segment}..{segment + 1}]",
                 "no way round the obstacle inside the joint limits",
             )
-
-
-def load_planned(source: str | Path) -> Scenario:
-    """A scenario from a file or name, with its planned path checked too (what the
-    controller runs, and so what anything that simulates it must accept)."""
-    scenario = load_scenario(source)
-    check_plan(scenario)
-    return scenario

@@ -42,6 +42,7 @@ import can
 
 from controller.node import COMMS_TIMEOUT, ControllerNode
 from controller.planner import check_plan
+from controller.task_rules import accept, numbered
 from protocol.errors import ConfigError
 from protocol.kinematics import forward
 from protocol.messages import (
@@ -59,7 +60,7 @@ from protocol.messages import (
     reason_of,
 )
 from protocol.node import ClockMode
-from protocol.scenario import Scenario, Waypoint, encode_task, parse_task, read_task
+from protocol.scenario import Scenario, Waypoint, encode_task, read_task
 from protocol.world import STARTUP_WORLD, World, next_world
 
 APPROACH_SPEED = 0.1
@@ -275,8 +276,7 @@ class ServiceNode(ControllerNode):
             self._answer(Answered.SCENARIO, ticket, Reason.BUSY)
             return
         try:
-            task = parse_task(document, self.base)
-            check_plan(task)
+            task = accept(document, self.base)
         except ConfigError as error:
             self.log.info("task refused: %s", error)
             self._answer(Answered.SCENARIO, ticket, reason_of(error))
@@ -323,5 +323,8 @@ def with_approach(task: Scenario, tcp: tuple[float, float, float]) -> tuple[Scen
     start = Waypoint(first.t - lead, *tcp)
     timeout = None if task.timeout is None else task.timeout + lead
     run = replace(task, waypoints=(start, *task.waypoints), timeout=timeout)
-    check_plan(run)
+    try:
+        check_plan(run)
+    except ConfigError as error:
+        raise numbered(error) from error
     return run, 1

@@ -21,7 +21,7 @@ import uvicorn
 import zenoh
 
 from bridge.session import add_zenoh_arguments, endpoint_from_args
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from gui.live import Fleet
 from gui.recording import Recording
 from gui.server import MAX_MESSAGE, Gui, build_app
@@ -122,7 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         host = check_host(args.host, allow_remote=args.allow_remote, name="--host")
         https = check_https(args.https_cert, args.https_key)
         robot = check_robot(args.robot)
-        base = load_planned(args.scenario) if args.scenario else Scenario("gui", (), None)
+        base = load_task(args.scenario) if args.scenario else Scenario("gui", (), None)
         read_only = args.read_only or args.user in READ_ONLY_USERS
         if args.recording is not None:
             gui = Gui(robot, read_only=True, recording=Recording.read(args.recording))

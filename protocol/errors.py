@@ -28,6 +28,19 @@ class WaypointInObstacleError(ConfigError):
     """A scenario's waypoint lies inside the inflated obstacle."""
 
 
+class WaypointNearObstacleError(ConfigError):
+    """A scenario's waypoint lies outside the inflated obstacle, but nearer it than a task
+    may ask (``controller/task_rules.py``)."""
+
+
+class WaypointNearLimitError(ConfigError):
+    """A scenario's waypoint is reachable, but nearer a joint's stop than a task may ask."""
+
+
+class PlanTooFastError(ConfigError):
+    """A scenario's planned path is faster somewhere than the TCP may move."""
+
+
 class PathOutsideWorkspaceError(ConfigError):
     """A scenario's planned path between two reachable waypoints leaves the workspace."""
 

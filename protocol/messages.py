@@ -22,8 +22,11 @@ from protocol.errors import (
     ConfigError,
     NoWayRoundError,
     PathOutsideWorkspaceError,
+    PlanTooFastError,
     UnreachableWaypointError,
     WaypointInObstacleError,
+    WaypointNearLimitError,
+    WaypointNearObstacleError,
 )
 from protocol.ops import Ops, Real
 
@@ -68,6 +71,12 @@ def reason_of(error: ConfigError) -> Any:
         return Reason.PATH_LEAVES_WORKSPACE
     if isinstance(error, NoWayRoundError):
         return Reason.NO_WAY_ROUND
+    if isinstance(error, WaypointNearObstacleError):
+        return Reason.NEAR_OBSTACLE
+    if isinstance(error, WaypointNearLimitError):
+        return Reason.NEAR_JOINT_LIMIT
+    if isinstance(error, PlanTooFastError):
+        return Reason.TOO_FAST
     return Reason.BAD_FIELD
 
 

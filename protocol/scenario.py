@@ -41,9 +41,14 @@ WAYPOINT_TOLERANCE = 0.002
 MAX_DURATION = 3600.0
 """s: the longest a run may last: its timeout, and so its plan (the waypoints' span plus the
 settling time), are at most this. It bounds a run's log (500 Hz: 1.8 million rows)."""
+NO_PROGRESS_TIME = 5.0
+"""s: a task's ``no_progress_time`` unless it sets one."""
 TIMEOUT_FACTOR = 2.0
 """A scenario's default timeout is this many times its plan's span, plus the settling time
-(at most MAX_DURATION): far beyond what a detour costs on a feasible task."""
+and TIMEOUT_ALLOWANCE (at most MAX_DURATION): beyond what a detour costs on a feasible task,
+a short plan's round a large obstacle included. A run that makes no progress ends long before
+(its ``no_progress_time``): the timeout is the last resort."""
+TIMEOUT_ALLOWANCE = 10.0
 DEFAULT_TOOL_RADIUS = 0.01
 DEFAULT_MARGIN = 0.01
 
@@ -74,6 +79,8 @@ class Scenario:
     timeout: float | None = None
     """s from the first waypoint after which a run that is not done ends in a fault; None: the
     default (:attr:`time_limit`)."""
+    no_progress_time: float = NO_PROGRESS_TIME
+    """s of plan without progress that end a run (:mod:`controller.run_end`)."""
     description: str = ""
     robot: RobotConfig = field(default_factory=RobotConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
@@ -92,11 +99,11 @@ class Scenario:
     @property
     def time_limit(self) -> float:
         """The timeout in force: the scenario's own, else TIMEOUT_FACTOR times the plan's
-        span plus the settling time, at most MAX_DURATION."""
+        span plus the settling time and TIMEOUT_ALLOWANCE, at most MAX_DURATION."""
         if self.timeout is not None:
             return self.timeout
         span = self.waypoints[-1].t - self.waypoints[0].t
-        return min(TIMEOUT_FACTOR * span + self.settle_time, MAX_DURATION)
+        return min(TIMEOUT_FACTOR * span + self.settle_time + TIMEOUT_ALLOWANCE, MAX_DURATION)
 
     def with_mode(self, mode: Mode) -> Scenario:
         return replace(self, mode=mode)
@@ -175,6 +182,8 @@ def task_document(scenario: Scenario) -> dict[str, Any]:
     }
     if scenario.timeout is not None:
         document["timeout"] = scenario.timeout
+    if scenario.no_progress_time != NO_PROGRESS_TIME:
+        document["no_progress_time"] = scenario.no_progress_time
     if scenario.obstacle is not None:
         document["obstacle"] = obstacle_document(scenario.obstacle, scenario.tool_radius)
     return document
@@ -252,6 +261,7 @@ def _with_task(base: Scenario, document: Mapping[str, Any], name: str) -> Scenar
         elbow=Elbow.UP if document.get("elbow", "down") == "up" else Elbow.DOWN,
         settle_time=float(document.get("settle_time", 1.0)),
         timeout=None if "timeout" not in document else float(document["timeout"]),
+        no_progress_time=float(document.get("no_progress_time", NO_PROGRESS_TIME)),
         description=document.get("description", ""),
         tool_radius=tool_radius,
     )
@@ -259,6 +269,10 @@ def _with_task(base: Scenario, document: Mapping[str, Any], name: str) -> Scenar
         raise ConfigError(
             "waypoints",
             f"the run would last {scenario.duration:g} s; at most {MAX_DURATION:g} s",
+        )
+    if scenario.no_progress_time > MAX_DURATION:
+        raise ConfigError(
+            "no_progress_time", f"{scenario.no_progress_time:g} s; at most {MAX_DURATION:g} s"
         )
     timeout = scenario.timeout
     if timeout is not None and not scenario.duration <= timeout <= MAX_DURATION:

@@ -45,7 +45,7 @@ from mcap.writer import Writer
 
 from bridge.scene import SCENE_TOPIC, STATE_TOPIC_PREFIX, TF_TOPIC, ArmScene, Joints
 from bridge.view import VIEWED, RobotView
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from protocol.bus import add_bus_arguments, enlarge_receive_buffer, open_bus_from_args
 from protocol.cli import add_verbosity, configure_logging, number, quiet_on_closed_pipe
 from protocol.codec import DBC_TEXT, alive_counter
@@ -398,7 +398,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging(args.verbose)
     yield_to_the_nodes()
     try:
-        scenario = load_planned(args.scenario) if args.scenario else None
+        scenario = load_task(args.scenario) if args.scenario else None
         bus = open_bus_from_args(args)
         enlarge_receive_buffer(bus)
     except (ScaraError, can.CanError, ValueError, OSError) as error:

@@ -33,7 +33,7 @@ from mcap.reader import make_reader
 from tqdm import tqdm
 
 from bridge.session import add_zenoh_arguments, endpoint_from_args
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from protocol.bus import add_bus_arguments, open_bus_from_args
 from protocol.cli import (
     add_verbosity,
@@ -394,7 +394,7 @@ def regression_main(args: argparse.Namespace) -> int:
     """``--regress``: the report, and 0 if every command is identical."""
     try:
         if args.scenario:
-            scenario = load_planned(args.scenario)
+            scenario = load_task(args.scenario)
         else:
             attached = read_attachments(args.file).get("scenario.json")
             if attached is None:

@@ -28,7 +28,7 @@ from controller.control_law import LawState, Stage, first_state, law_of, stages_
 from controller.coordination import Coordination
 from controller.fuzzy import RuleBase
 from controller.planner import plan_of
-from controller.run_end import OUTCOMES, RunEnd, ending, run_end_of
+from controller.run_end import OUTCOMES, UNWATCHED, RunEnd, Watch, ending, run_end_of
 from plant_sim.model import integrate
 from protocol.array_ops import rebuilt, take
 from protocol.messages import joints_on_the_wire, rates_on_the_wire
@@ -132,11 +132,15 @@ class _Batch:
         """Each run's ticks: at most up to its timeout, until it ends."""
         self.ending = np.zeros(self.count, dtype=np.intp)
         """How each run ended (:func:`controller.run_end.ending`'s code; 0: it goes on)."""
+        self.watch: Watch = _stacked([UNWATCHED] * self.count)
         self.start = np.array([s.waypoints[0].t for s in scenarios])
         coordination = Coordination.of(config.sensing_range, config.switch_distance, rule_base)
         plans = [plan_of(s) for s in scenarios]
         self.plans = _Plans(
-            [stages_of(plan, s.obstacle) for plan, s in zip(plans, scenarios, strict=True)]
+            [
+                stages_of(plan, s.obstacle, config.ao_pass_margin)
+                for plan, s in zip(plans, scenarios, strict=True)
+            ]
         )
         self.law = _stacked(
             [
@@ -165,6 +169,7 @@ class _Batch:
         """Only the runs ``rows`` from now on (the others have finished)."""
         self.ticks, self.start = self.ticks[rows], self.start[rows]
         self.end, self.ending = take(self.end, rows), self.ending[rows]
+        self.watch = take(self.watch, rows)
         self.law, self.state = take(self.law, rows), take(self.state, rows)
         self.position, self.velocity = self.position[:, rows], self.velocity[:, rows]
         self.plans.keep(rows)
@@ -183,7 +188,9 @@ class _Batch:
         self.position, self.velocity, _ = integrate(
             ARRAY, self.position, self.velocity, command, limits, blend, substep, substeps
         )
-        code = ending(ARRAY, self.end, self.state.reached, output, velocity, tick, tick)
+        code, self.watch = ending(
+            ARRAY, self.end, self.state.reached, output, velocity, tick, tick, self.watch
+        )
         ends = (code != 0) & (self.ending == 0)
         self.ending[ends] = code[ends]
         self.ticks[ends] = tick + 1

@@ -13,7 +13,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from protocol.cli import add_verbosity, configure_logging, quiet_on_closed_pipe
 from protocol.errors import ScaraError
 from protocol.scenario import SCENARIO_DIR, Mode
@@ -56,7 +56,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.verbose)
     try:
-        scenario = load_planned(args.scenario)
+        scenario = load_task(args.scenario)
     except ScaraError as error:
         print(f"scara-sim: bad scenario: {error}", file=sys.stderr)
         return 2

@@ -5,8 +5,8 @@ random stream, ``numpy.random.default_rng([seed, index])`` for the mix and
 ``[seed, index, n]`` for the family numbered ``n``), so a study of 1,000 scenarios is the
 first 1,000 of a study of 100,000 and any worker can rebuild any slice of it.
 
-Every scenario passes the checks a hand-written one does (:func:`check_scenario`, and the
-planned path by :func:`check_plan`), except that a task with no way round its obstacle
+Every scenario passes the gate a hand-written one does (:func:`controller.task_rules.check_task`,
+every rule of what a task may ask), except that a task with no way round its obstacle
 (``NoWayRoundError``) is kept, as a user would offer it: the controller refuses it, and the
 study counts the refusals. On top come the generator's own rules (a draw that breaks one is
 drawn again from the same stream):
@@ -44,7 +44,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from controller.planner import check_plan, plan_of
+from controller.planner import plan_of
+from controller.task_rules import check_task
 from protocol.config import RobotConfig
 from protocol.errors import ConfigError, KinematicsError, NoWayRoundError, ScaraError
 from protocol.geometry import EllipticCylinder, to_world
@@ -55,7 +56,6 @@ from protocol.scenario import (
     Mode,
     Scenario,
     Waypoint,
-    check_scenario,
 )
 from sim.measures import STOP_REST_MARGIN, STOP_SPEED_FRACTION, stop_threshold_and_rests
 
@@ -642,8 +642,7 @@ def _timed_scenario(
     if recipe.settle_time is not None:
         scenario = replace(scenario, settle_time=recipe.settle_time)
     try:
-        check_scenario(scenario)
-        check_plan(scenario)
+        check_task(scenario)
     except NoWayRoundError:
         pass  # offered as a user would: the controller refuses it, and the study counts that
     except ConfigError:

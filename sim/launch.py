@@ -32,7 +32,7 @@ import can
 import zenoh
 from tqdm import tqdm
 
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from protocol.bus import add_bus_arguments, parse_options, resolve_transport
 from protocol.certs import CertificateSet
 from protocol.cli import (
@@ -473,7 +473,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     interruptible()
     signal.signal(signal.SIGTERM, _interrupt)  # stop the nodes on SIGTERM as on Ctrl-C
     try:
-        scenario = load_planned(args.scenario)
+        scenario = load_task(args.scenario)
         parse_options(args.bus_option)
         name_the_robot(parser, args)
         check_tls(parser, args)

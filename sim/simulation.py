@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from controller.control_law import ControlLaw
-from controller.run_end import OUTCOMES, ending, run_end_of
+from controller.run_end import OUTCOMES, UNWATCHED, ending, run_end_of
 from controller.runlog import RunLog, row_of
 from plant_sim.model import PlantModel
 from protocol.messages import joints_on_the_wire, rates_on_the_wire
@@ -29,7 +29,8 @@ class SimulationRun:
 
 def simulate(scenario: Scenario, mode: Mode | None = None) -> SimulationRun:
     """Run ``scenario`` (in ``mode`` if given) from its first waypoint until it ends
-    (:mod:`controller.run_end`): its task done, its timeout reached, or no safe motion left."""
+    (:mod:`controller.run_end`): its task done, no progress, its timeout reached, or no safe
+    motion left."""
     if mode is not None:
         scenario = scenario.with_mode(mode)
     law = ControlLaw.for_scenario(scenario)
@@ -39,12 +40,13 @@ def simulate(scenario: Scenario, mode: Mode | None = None) -> SimulationRun:
     start = scenario.waypoints[0].t
     log = RunLog(end.end_tick + 1)  # a run done on time; a later one's log grows
     code = tick = 0
+    watch = UNWATCHED
     while not code:
         t = start + tick * period
         position, velocity = joints_on_the_wire(SCALAR, plant.position, plant.velocity)
         output = law.step(t, position)
         log.append(row_of(t, position, velocity, output, t))
         plant.advance(rates_on_the_wire(SCALAR, output.command), period)
-        code = ending(SCALAR, end, law.state.reached, output, velocity, tick, tick)
+        code, watch = ending(SCALAR, end, law.state.reached, output, velocity, tick, tick, watch)
         tick += 1
     return SimulationRun(scenario, log, compute_measures(scenario, log, OUTCOMES[code - 1]))

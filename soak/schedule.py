@@ -12,8 +12,8 @@ import random
 from dataclasses import dataclass
 from enum import Enum
 
-from controller.planner import load_planned
 from controller.service import with_approach
+from controller.task_rules import load_task
 from protocol.errors import ConfigError
 from protocol.faults import FaultSpec
 from protocol.scenario import Mode, Scenario
@@ -160,7 +160,7 @@ def wire_faults(seed: int, node: str, start: int) -> FaultSpec:
 
 def home() -> Scenario:
     """The scenario whose first waypoint is the arm's home (:data:`HOME_SCENARIO`)."""
-    return load_planned(HOME_SCENARIO)
+    return load_task(HOME_SCENARIO)
 
 
 def task(seed: int, number: int, start: Scenario) -> Scenario:

@@ -41,6 +41,7 @@ def summary(outcomes: Sequence[Outcome]) -> dict[str, str]:
         "scenarios with stops": f"{sum(m.stops > 0 for m in measures)}",
         "timed out": f"{sum(m.outcome is RunOutcome.TASK_TIMEOUT for m in measures)}",
         "no safe motion": f"{sum(m.outcome is RunOutcome.NO_SAFE_MOTION for m in measures)}",
+        "no progress": f"{sum(m.outcome is RunOutcome.NO_PROGRESS for m in measures)}",
         f"scenarios near a stop (margin < {NEAR_STOP:g})": str(
             sum(m.stop_margin < NEAR_STOP for m in measures)
         ),

@@ -110,12 +110,26 @@ def test_the_first_task_starts_with_waypoints() -> None:
             "waypoints[0]",
         ),
         ("waypoints", {"waypoints": [WAYPOINTS[1], WAYPOINTS[0]]}, "bad_field", "waypoints[1].t"),
+        (
+            "waypoints",
+            {"waypoints": [WAYPOINTS[0], WAYPOINTS[1] | {"x": 0.455, "y": -0.07}]},
+            "near_obstacle",
+            "waypoints[1]",
+        ),
+        (
+            "waypoints",
+            {"waypoints": [WAYPOINTS[0], WAYPOINTS[1] | {"t": 0.3}]},
+            "too_fast",
+            "waypoints[0..1]",
+        ),
     ],
     ids=[
         "unreachable",
         "waypoint-in-obstacle",
         "obstacle-on-waypoint",
         "time-backwards",
+        "waypoint-beside-obstacle",
+        "too-fast",
     ],
 )
 def test_a_task_the_controller_would_refuse_is_refused_with_its_reason(
@@ -126,6 +140,7 @@ def test_a_task_the_controller_would_refuse_is_refused_with_its_reason(
     assert (raised.value.reason, raised.value.field) == (reason, field), raised.value
     reply = raised.value.reply()
     assert reply["accepted"] is False and reply["reason"] == reason and reply["message"]
+    assert reply["message"].endswith(")") and "(rule " in reply["message"]
 
 
 def test_the_bridge_and_the_controller_cap_the_waypoints_alike() -> None:

@@ -27,7 +27,7 @@ from support import (
 from bridge.commands import TASK_COMMANDS, edit_task, parse_payload
 from bridge.node import build_parser, foxglove_from_args
 from bridge.scene import SCENE_TOPIC, TF_TOPIC, TRAIL_STEP, WORLD
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from protocol.config import RobotConfig
 from protocol.keys import COMMANDS, STATE_KEYS, schema
 from protocol.kinematics import forward
@@ -242,7 +242,7 @@ def test_the_shipped_layout_shows_what_is_served_and_its_buttons_send_commands_t
 
     buttons = {c["serviceName"]: c for k, c in panels.items() if k.startswith("CallService!")}
     assert set(buttons) == {f"cmd/{name}" for name in COMMANDS}
-    base = load_planned("reference")
+    base = load_task("reference")
     task = None
     for name in ("waypoints", "obstacle", "mode", "run", "reset", "stop", "estop"):
         body = parse_payload(name, buttons[f"cmd/{name}"]["requestPayload"].encode())

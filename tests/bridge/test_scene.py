@@ -25,11 +25,11 @@ from bridge.scene import (
     arm_frames,
     frame_transforms,
 )
-from controller.planner import load_planned
+from controller.task_rules import load_task
 from protocol.config import RobotConfig
 from protocol.kinematics import forward
 
-REFERENCE = load_planned("reference")
+REFERENCE = load_task("reference")
 ROBOT = REFERENCE.robot
 POSES = [(0.0, 0.0, 0.0), (0.7, -1.9, 0.12), (-2.5, 2.4, 0.2), (1.3, 0.4, 0.05)]
 

@@ -250,7 +250,13 @@ def _come_onto_waypoint(
     for _ in range(5000):
         distance = math.hypot(point[0] - x, point[1] - y)
         vx, vy, _ = final_approach(
-            SCALAR, CONFIG.position_gain, point, stage.leaving, distance, (x, y, point[2])
+            SCALAR,
+            CONFIG.position_gain,
+            point,
+            stage.leaving,
+            distance,
+            (x, y, point[2]),
+            stage.loop_radius,
         )
         distances.append(distance)
         assert math.hypot(vx, vy) <= CONFIG.position_gain * distance * (1.0 + 1e-12)
@@ -287,7 +293,13 @@ def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
     point = last.point
     tcp = (point[0] + 0.004, point[1] - 0.001, point[2])
     approach = final_approach(
-        SCALAR, CONFIG.position_gain, point, last.leaving, math.hypot(0.004, 0.001), tcp
+        SCALAR,
+        CONFIG.position_gain,
+        point,
+        last.leaving,
+        math.hypot(0.004, 0.001),
+        tcp,
+        last.loop_radius,
     )
     assert approach == pytest.approx(
         (CONFIG.position_gain * -0.004, CONFIG.position_gain * 0.001, 0.0)

@@ -223,6 +223,37 @@ def test_a_run_goes_on_past_its_plan_until_its_timeout_then_latches_task_timeout
     assert commands(peer) == [(0, 0.0, 0.0, 0.0)]
 
 
+def test_a_run_that_makes_no_progress_latches_no_progress_long_before_its_timeout(
+    virtual_pair: tuple[can.BusABC, can.BusABC],
+) -> None:
+    """The plant reports the arm where it started: the plan runs on to its first inner
+    waypoint and waits there for the arm, which comes no nearer; after the task's
+    no_progress_time the run ends so."""
+    node_bus, peer = virtual_pair
+    clock = FakeClock()
+    scenario = replace(SCENARIO, no_progress_time=0.3, timeout=SCENARIO.duration + 30.0)
+    controller = ControllerNode(node_bus, scenario, ClockMode.REALTIME, clock=clock)
+    counter = 0
+    while controller.node_state is not NodeState.FAULT:
+        assert controller.tick < round(scenario.time_limit / controller.period)
+        send_state(peer, counter % 16)
+        counter += 1
+        tick(controller, clock)
+        commands(peer)
+    waiting_from = scenario.waypoints[1].t - scenario.waypoints[0].t
+    # the plan ran on (progress) until it stopped to wait at waypoint 1, then 0.3 s of none
+    assert waiting_from < controller.tick * controller.period < waiting_from + 0.3 + 0.1
+    assert controller.fault == ControllerFault.NO_PROGRESS
+    status = {codec.name: record for codec, record in controller.statuses()}
+    assert status["ControllerStatus"].FaultCode == ControllerFault.NO_PROGRESS.value
+    result = controller.result()
+    assert result["outcome"] == "no_progress" and result["faults"] == ["NO_PROGRESS"]
+    assert not result["completed"] and controller.exit_code == 1
+    send_state(peer, counter % 16)
+    tick(controller, clock)
+    assert commands(peer) == [(0, 0.0, 0.0, 0.0)]  # braking
+
+
 def test_no_safe_motion_during_a_run_latches_its_fault_and_brakes(
     virtual_pair: tuple[can.BusABC, can.BusABC], monkeypatch: pytest.MonkeyPatch
 ) -> None:

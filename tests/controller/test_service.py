@@ -41,7 +41,14 @@ from protocol.messages import (
     Request,
 )
 from protocol.node import ClockMode
-from protocol.scenario import Scenario, encode_task, load_scenario, parse_task, task_document
+from protocol.scenario import (
+    TIMEOUT_ALLOWANCE,
+    Scenario,
+    encode_task,
+    load_scenario,
+    parse_task,
+    task_document,
+)
 from recorder.tasks import TASK_IDS, TaskInForce
 
 REFERENCE = load_scenario("reference")
@@ -160,8 +167,23 @@ def test_a_task_sent_over_isotp_is_accepted_and_described_back(rig: Rig) -> None
         (lambda d: d.update(settle_time=-1.0), Reason.BAD_FIELD),
         (lambda d: d.update(colour="red"), Reason.BAD_FIELD),
         (lambda d: d.update(ticket="seven"), Reason.MALFORMED),
+        (lambda d: d["waypoints"][2].update(x=0.455, y=0.045), Reason.NEAR_OBSTACLE),
+        (lambda d: d["waypoints"][1].update(t=0.3), Reason.TOO_FAST),
+        (
+            lambda d: d["obstacle"].update(long_diameter=0.9, short_diameter=0.06),
+            Reason.NO_WAY_ROUND,  # 15: once outside the signal's range, it could not be said
+        ),
     ],
-    ids=["unreachable", "inside-obstacle", "bad-value", "unknown-field", "bad-ticket"],
+    ids=[
+        "unreachable",
+        "inside-obstacle",
+        "bad-value",
+        "unknown-field",
+        "bad-ticket",
+        "near-obstacle",
+        "too-fast",
+        "no-way-round",
+    ],
 )
 def test_a_task_the_rules_refuse_leaves_the_task_in_force(
     rig: Rig, edit: Callable[[dict[str, Any]], None], reason: Any
@@ -494,7 +516,7 @@ def test_the_approach_segment_leads_from_the_arm_to_the_first_waypoint() -> None
     assert run.waypoints[1:] == TASK.waypoints
     assert first.t - run.waypoints[0].t >= 0.5
     span = run.waypoints[-1].t - run.waypoints[0].t
-    assert run.time_limit == 2 * span + TASK.settle_time  # the default: of the whole run
+    assert run.time_limit == 2 * span + TASK.settle_time + TIMEOUT_ALLOWANCE  # the whole run's
     timed = replace(TASK, timeout=TASK.duration)
     assert with_approach(timed, tcp)[0].time_limit == run.duration  # the task's plus the lead
     at_start = forward(TASK.robot, *TASK.initial_joints())

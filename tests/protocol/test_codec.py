@@ -314,6 +314,17 @@ def test_dbc_ranges_fit_their_bits(codec: MessageCodec) -> None:
         assert bits_low <= low <= high <= bits_high, spec.name
 
 
+def test_every_value_a_table_names_is_in_its_signals_range() -> None:
+    # Reason 15 (no_way_round) was named but outside [0, 14]: the controller could not say it
+    for message in DB.messages:
+        for signal in message.signals:
+            if signal.choices:
+                low, high = signal.minimum, signal.maximum
+                assert all(low <= int(value) <= high for value in signal.choices), (
+                    f"{message.name}.{signal.name}: {sorted(signal.choices)} not in [{low}, {high}]"
+                )
+
+
 def test_counter_is_the_low_nibble_of_byte_1() -> None:
     codec = WIRE["JointVelocityCommand"]
     for counter in range(16):

@@ -125,7 +125,7 @@ def test_bad_scenarios_name_the_field(change: Any, field: str) -> None:
 
 def test_the_timeout_defaults_to_twice_the_plan_and_round_trips_when_set() -> None:
     default = parse_scenario(REFERENCE)
-    assert default.timeout is None and default.time_limit == 2 * 5.5 + 1.0
+    assert default.timeout is None and default.time_limit == 2 * 5.5 + 1.0 + 10.0
     assert "timeout" not in scenario_document(default)
     longest = parse_scenario(broken(_set(["settle_time"], MAX_DURATION - 5.5)))
     assert longest.time_limit == MAX_DURATION  # the default never exceeds the bound

@@ -174,13 +174,28 @@ def test_batch_equals_scalar_where_the_height_leads() -> None:
 
 
 def test_runs_leave_a_batch_when_each_ends_as_in_the_scalar_simulation() -> None:
-    """A run done on time, one a detour made late and the same timed out at its plan's end:
-    each its own outcome, and measures equal to the scalar simulation's."""
+    """A run done on time, one a detour made late, the same timed out at its plan's end and
+    the same given less time without progress than its detour takes: each its own outcome,
+    and measures equal to the scalar simulation's."""
     late = load_scenario(LATE_DETOUR)
-    chosen = [load_scenario("reference"), late, replace(late, timeout=late.duration)]
+    chosen = [
+        load_scenario("reference"),
+        late,
+        replace(late, timeout=late.duration),
+        replace(late, no_progress_time=0.2),  # its detour holds the arm off longer
+    ]
     batch = batch_against_scalar(chosen)
     outcomes = [result.measures.outcome for result in batch]
-    assert outcomes == [RunOutcome.DONE, RunOutcome.DONE, RunOutcome.TASK_TIMEOUT] * 2
+    assert (
+        outcomes
+        == [
+            RunOutcome.DONE,
+            RunOutcome.DONE,
+            RunOutcome.TASK_TIMEOUT,
+            RunOutcome.NO_PROGRESS,
+        ]
+        * 2
+    )
     assert max(result.measures.max_waypoint_miss for result in batch[:2]) <= WAYPOINT_TOLERANCE
 
 
