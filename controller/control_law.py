@@ -405,7 +405,15 @@ def step(
         (depth_next, depth_before),
         measurement.clearance,
     )
-    k_t, k_c = weights(ops, law.coordination, law.fuzzy, measurement, min_distance, at_waypoint)
+    k_t, k_c = weights(
+        ops,
+        law.coordination,
+        law.fuzzy,
+        measurement,
+        min_distance,
+        at_waypoint,
+        law.obstacle.top - tcp[2],
+    )
     total = k_t + k_c
     blended = Command(
         (k_t * tracking.v + k_c * avoiding.v) / total,

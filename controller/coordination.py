@@ -20,6 +20,9 @@ AHEAD_FULL = 0.3
 the TCP moves) and "towards the obstacle", from which AO counts fully."""
 AHEAD_NONE = -0.2
 """Below this AO does not count at all, and the controller forgets its TL/TR choice."""
+HEIGHT_FADE = 0.01
+"""m below the obstacle's top (its height plus the inflation) from which AO counts fully in
+the fuzzy mode; at the top, where DM stops seeing the obstacle, not at all."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,6 +53,7 @@ def weights(
     measurement: ObstacleMeasurement,
     min_distance: Real,
     at_waypoint: Real,
+    below_top: Real,
 ) -> tuple[Real, Real]:
     """k_T and k_C: Table 2's where ``fuzzy``, else the hard switch.
 
@@ -57,9 +61,12 @@ def weights(
     that AO fades in and out instead of switching: fully within half the sensing range, not
     at all at the range; fully while the obstacle is ahead, towards p_j or the way the TCP
     moves (or the TCP is inside it), fading as it falls behind (smoothsteps of the distance
-    and of the larger of ``ahead`` and ``toward``); and not at all deep in a waypoint's free
-    room. Conventional: PT alone, or AO alone while an obstacle ahead is closer than the
-    switch distance (and the TCP is not in the free room of its waypoint).
+    and of the larger of ``ahead`` and ``toward``); not at all deep in a waypoint's free
+    room; and fully from HEIGHT_FADE below the obstacle's top (``below_top``: how far the TCP
+    is below it), not at all at the top, where DM stops seeing it (an arm rising over a low
+    obstacle lost AO in one tick, its peak jerk ten times the hard switch's).
+    Conventional: PT alone, or AO alone while an obstacle ahead is closer than the switch
+    distance (and the TCP is not in the free room of its waypoint).
     """
     present, clearance = measurement.present, measurement.clearance
     switched = (
@@ -79,6 +86,7 @@ def weights(
         clearance,
         ops.max(measurement.ahead, measurement.toward),
         at_waypoint,
+        below_top,
     )
     return (
         ops.where(fuzzy, k_t, ops.where(switched, 0.0, 1.0)),
@@ -94,6 +102,7 @@ def _fuzzy_weights(
     clearance: Real,
     facing: Real,
     at_waypoint: Real,
+    below_top: Real,
 ) -> tuple[Real, Real]:
     """:func:`weights` of the fuzzy coordinator with an obstacle present."""
     k_t, k_c = infer(ops, coordination.inference, min_distance, beta)
@@ -102,7 +111,8 @@ def _fuzzy_weights(
     relevance = smoothstep(ops, (sensing_range - min_distance) / half)
     fading = smoothstep(ops, (facing - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
     relevance = ops.where(clearance > 0.0, relevance * fading, relevance)
-    return k_t, k_c * relevance * (1.0 - at_waypoint)
+    height = smoothstep(ops, below_top / HEIGHT_FADE)
+    return k_t, k_c * relevance * height * (1.0 - at_waypoint)
 
 
 def smoothstep(ops: Ops, x: Real) -> Real:

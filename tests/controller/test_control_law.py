@@ -24,7 +24,7 @@ from controller.control_law import (
     height_lead,
     reach_limited,
 )
-from controller.coordination import Coordination, weights
+from controller.coordination import HEIGHT_FADE, Coordination, weights
 from controller.fuzzy import RuleBase
 from controller.obstacle import ObstacleMeasurement, measure
 from protocol.config import ControllerConfig, RobotConfig
@@ -100,7 +100,10 @@ def test_conventional_switch_is_all_or_nothing() -> None:
     coordination = Coordination.of(sensing_range=0.5, switch_distance=0.05)
 
     def conventional(measurement: ObstacleMeasurement) -> tuple[float, float]:
-        return weights(SCALAR, coordination, False, measurement, measurement.min_distance, 0.0)
+        below_top = obstacle.section().top - 0.2
+        return weights(
+            SCALAR, coordination, False, measurement, measurement.min_distance, 0.0, below_top
+        )
 
     far = measure(obstacle, (0.3, 0.0, 0.2), (0.7, 0.0), 0.5)
     near = measure(obstacle, (0.44, 0.0, 0.2), (0.7, 0.0), 0.5)
@@ -108,6 +111,25 @@ def test_conventional_switch_is_all_or_nothing() -> None:
     assert conventional(far) == (1.0, 0.0)
     assert conventional(near) == (0.0, 1.0)
     assert conventional(behind) == (1.0, 0.0)
+
+
+def test_fuzzy_avoidance_fades_out_below_the_obstacles_top_not_at_it() -> None:
+    """An arm rising over a low obstacle: k_C from full HEIGHT_FADE below the top to none at
+    it, where DM stops seeing the obstacle (it used to drop from 1 to 0 in one tick)."""
+    obstacle = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02)
+    coordination = Coordination.of(sensing_range=0.5, switch_distance=0.05)
+    top = obstacle.section().top
+    near = measure(obstacle, (0.44, 0.0, 0.2), (0.7, 0.0), 0.5)
+
+    def k_c(below_top: float) -> float:
+        return weights(SCALAR, coordination, True, near, near.min_distance, 0.0, below_top)[1]
+
+    full = k_c(HEIGHT_FADE)
+    assert full > 0.5 and k_c(1.0) == full
+    fading = [k_c(HEIGHT_FADE * share) for share in (0.75, 0.5, 0.25, 0.0)]
+    assert full > fading[0] > fading[1] > fading[2] > fading[3] == 0.0
+    above = measure(obstacle, (0.44, 0.0, top + 0.001), (0.7, 0.0), 0.5)
+    assert weights(SCALAR, coordination, True, above, above.min_distance, 0.0, -0.001)[1] == 0.0
 
 
 @pytest.mark.parametrize("mode", list(Mode))
