@@ -195,9 +195,8 @@ def _check_waypoints(task: Scenario) -> None:
                 )
 
 
-def _check_speed(task: Scenario) -> None:
-    """Rule 7: the plan's planar speed, every PATH_CHECK_STEP, at most the controller's
-    ``speed_max``."""
+def peak_speed(task: Scenario) -> tuple[float, float]:
+    """The plan's fastest planar speed, every PATH_CHECK_STEP, and when (rule 7's measure)."""
     trajectory = plan_of(task)
     start, end = task.waypoints[0].t, task.waypoints[-1].t
     steps = max(1, math.ceil((end - start) / PATH_CHECK_STEP))
@@ -205,11 +204,17 @@ def _check_speed(task: Scenario) -> None:
     velocities = trajectory.sample(times)[1]
     speeds = np.hypot(velocities[:, 0], velocities[:, 1])
     fastest = int(np.argmax(speeds))
+    return float(speeds[fastest]), float(times[fastest])
+
+
+def _check_speed(task: Scenario) -> None:
+    """Rule 7: the plan's planar speed at most the controller's ``speed_max``."""
+    speed, when = peak_speed(task)
     cap = task.controller.speed_max
-    if speeds[fastest] > cap:
-        segment = trajectory.segment_index(float(times[fastest]))
+    if speed > cap:
+        segment = plan_of(task).segment_index(when)
         raise PlanTooFastError(
             f"waypoints[{segment - 1}..{segment}]",
-            f"the planned path moves at {speeds[fastest]:.3f} m/s at t = "
-            f"{times[fastest]:.3f} s; it may move at {cap:g} m/s at most",
+            f"the planned path moves at {speed:.3f} m/s at t = {when:.3f} s; it may move at "
+            f"{cap:g} m/s at most",
         )

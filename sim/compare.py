@@ -25,7 +25,7 @@ from typing import Any
 from tqdm import tqdm
 
 from protocol.cli import add_verbosity, configure_logging, interruptible, quiet_on_closed_pipe
-from protocol.errors import ConfigError, NoWayRoundError
+from protocol.errors import ConfigError
 from protocol.scenario import Mode, Scenario
 from sim.generator import HELD_OUT_SEEDS, Family, is_held_out
 from sim.study.jobs import (
@@ -76,7 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="which scenarios: mix (the seven cases the law was tuned on, the default), inner "
         "or outer (an obstacle at a reach limit), fast (a detour at up to 0.4 m/s), multi "
         "(several detours in one task), user (tasks as users wrote them), wide (obstacles "
-        "25-50 cm long at the inner limit: many without a way round, refused), held_out",
+        "25-50 cm long at the inner limit: many without a way round, refused), held_out, "
+        "edge_obstacle, edge_limit, edge_speed, edge_reach (user's tasks at the edge of a "
+        "rule of what a task may ask: half just inside, half just outside, refused)",
     )
     parser.add_argument(
         "--held-out",
@@ -116,8 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=DEFAULT_CHECKED,
         metavar="N",
-        help="check N of the tasks the controller refuses (no way round the obstacle) by "
-        f"brute force: a dense search for a way it missed (default {DEFAULT_CHECKED})",
+        help="check N of the tasks the gate refuses by brute force, each rule by a search "
+        f"of its own (a way round it missed, ...; default {DEFAULT_CHECKED})",
     )
     parser.add_argument("--no-figure", action="store_true", help="skip the figures")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -174,7 +176,7 @@ def _main(argv: Sequence[str] | None) -> int:
             for i in indices[::GENERATE_CHUNK]
         ]
         generated: dict[int, Scenario] = {}
-        refused: list[tuple[Scenario, NoWayRoundError]] = []
+        refused: list[tuple[Scenario, ConfigError]] = []
         for chunk in executor.map(generate_chunk, chunks):
             for index, scenario, refusal in chunk:
                 if refusal is None:

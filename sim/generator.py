@@ -57,6 +57,7 @@ from protocol.scenario import (
     Scenario,
     Waypoint,
 )
+from sim.edges import Edge, at_edge
 from sim.measures import STOP_REST_MARGIN, STOP_SPEED_FRACTION, stop_threshold_and_rests
 
 
@@ -115,6 +116,14 @@ class Family(Enum):
     HELD_OUT = "held_out"
     """Every kind of the families above in turn, with numbers of its own: for judging the
     tuned law, never for tuning it."""
+    EDGE_OBSTACLE = "edge_obstacle"
+    """:attr:`USER`'s tasks with a waypoint at rule 4's edge (:mod:`sim.edges`)."""
+    EDGE_LIMIT = "edge_limit"
+    """... with a waypoint's joint at rule 3's edge."""
+    EDGE_SPEED = "edge_speed"
+    """... retimed so that the plan peaks at rule 7's edge."""
+    EDGE_REACH = "edge_reach"
+    """... with a waypoint at rule 2's outer edge."""
 
 
 WAYPOINT_CLEARANCE = 0.02
@@ -222,6 +231,9 @@ FAMILIES: dict[Family, tuple[Recipe, ...]] = {
     Family.MULTI: (_MULTI,),
     Family.USER: _USER,
     Family.WIDE: (replace(_INNER, diameters=WIDE_DIAMETERS),),
+    **dict.fromkeys(
+        (Family.EDGE_OBSTACLE, Family.EDGE_LIMIT, Family.EDGE_SPEED, Family.EDGE_REACH), _USER
+    ),
     Family.HELD_OUT: tuple(
         replace(recipe, diameters=HELD_OUT_DIAMETERS)
         for recipe in (
@@ -242,6 +254,10 @@ _STREAMS = {
     Family.USER: 5,
     Family.HELD_OUT: 6,
     Family.WIDE: 7,
+    Family.EDGE_OBSTACLE: 8,
+    Family.EDGE_LIMIT: 9,
+    Family.EDGE_SPEED: 10,
+    Family.EDGE_REACH: 11,
 }
 """Each family's own random streams beyond the mix's (a new family takes a new number)."""
 
@@ -292,6 +308,13 @@ def generate_scenario_at(
     else:
         rng = np.random.default_rng([seed, index, _STREAMS[family]])
         name = f"{family.value}-{seed}-{index}-{recipe.case.value}"
+    if family.value.startswith("edge_"):
+        edge = Edge(family.value)
+        for _ in range(MAX_ATTEMPTS):
+            moved = at_edge(generate_scenario(rng, recipe, name), edge, rng)
+            if moved is not None:
+                return moved.with_mode(mode)
+        raise ScaraError(f"no task at {edge.value} in {MAX_ATTEMPTS} draws ({name})")
     return generate_scenario(rng, recipe, name).with_mode(mode)
 
 

@@ -10,8 +10,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from controller.fuzzy import RuleBase
-from controller.planner import check_plan
-from protocol.errors import NoWayRoundError
+from controller.task_rules import check_task
+from protocol.errors import ConfigError
 from protocol.scenario import Mode, Scenario
 from sim.batch import BatchRun, simulate_batch
 from sim.generator import Family, generate_scenario_at
@@ -54,7 +54,7 @@ class Outcome:
 
 def generate_chunk(
     seed: int, indices: Sequence[int], family: Family = Family.MIX, held_out: bool = False
-) -> list[tuple[int, Scenario, NoWayRoundError | None]]:
+) -> list[tuple[int, Scenario, ConfigError | None]]:
     """Scenarios ``indices`` of ``family``'s study ``seed`` (each depends on its index only;
     a held-out one only with ``held_out``), each with the controller's refusal if it refuses
     it (no way round the obstacle: the generator offers such tasks as a user would)."""
@@ -67,11 +67,11 @@ def generate_chunk(
     ]
 
 
-def refusal(scenario: Scenario) -> NoWayRoundError | None:
-    """The plan check's refusal of ``scenario`` for want of a way round, if it refuses it."""
+def refusal(scenario: Scenario) -> ConfigError | None:
+    """The gate's refusal of ``scenario`` (:mod:`controller.task_rules`), if it refuses it."""
     try:
-        check_plan(scenario)
-    except NoWayRoundError as error:
+        check_task(scenario)
+    except ConfigError as error:
         return error
     return None
 

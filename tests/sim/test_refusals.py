@@ -62,6 +62,10 @@ def test_a_task_with_no_way_round_is_always_refused() -> None:
     assert any(verdict is Verdict.NO_WAY for verdict in verdicts)
     assert any(verdict is Verdict.WAY for verdict in verdicts)
     report = refusal_report(60, refused, checked=len(refused))
-    assert f"refused (no way round the obstacle inside the joint limits): {len(refused)}" in report
-    named = {line.split(": ")[1] for line in report.splitlines() if "though a way" in line}
+    assert f"refused: {len(refused)} (rule 6: {len(refused)})" in report
+    named = {
+        line.split(": ")[1].split(" (")[0]
+        for line in report.splitlines()
+        if "though the rule holds" in line
+    }
     assert named == {task.name for task, _ in refused if way_round(task, 0) is Verdict.WAY}

@@ -1,0 +1,45 @@
+"""The edge families (sim/edges.py): a user's task moved to one rule's edge; the inside twin
+taken, the outside one refused by that rule alone, and the refusal upheld by the brute force
+of sim/study/refusals.py; the inside twins done in both modes."""
+
+from __future__ import annotations
+
+import pytest
+
+from controller.task_rules import check_task, rule_of
+from protocol.errors import ConfigError
+from protocol.scenario import Mode
+from sim.batch import simulate_batch
+from sim.generator import Family, generate_scenario_at
+from sim.study.refusals import Check, brute_force
+
+RULE = {
+    Family.EDGE_OBSTACLE: 4,
+    Family.EDGE_LIMIT: 3,
+    Family.EDGE_SPEED: 7,
+    Family.EDGE_REACH: 2,
+}
+
+
+@pytest.mark.parametrize("family", list(RULE), ids=lambda family: family.value)
+def test_an_edge_familys_tasks_sit_just_either_side_of_its_rule(family: Family) -> None:
+    inside, outside = [], []
+    for index in range(24):
+        task = generate_scenario_at(0, index, family=family)
+        assert generate_scenario_at(0, index, family=family) == task  # the same numbers
+        try:
+            check_task(task)
+        except ConfigError as error:
+            assert task.name.endswith("-outside"), task.name
+            assert rule_of(error).number == RULE[family], error
+            assert brute_force(task, error) is Check.RIGHT, task.name
+            outside.append(task)
+        else:
+            assert task.name.endswith("-inside"), task.name
+            inside.append(task)
+    assert len(inside) >= 6 and len(outside) >= 6
+    for mode in Mode:
+        for task, run in zip(inside, simulate_batch(inside, mode), strict=True):
+            measures = run.measures
+            assert measures.outcome == "done", (task.name, mode, measures.outcome)
+            assert measures.max_waypoint_miss <= 0.002 and measures.stops == 0, task.name
