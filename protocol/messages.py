@@ -61,23 +61,21 @@ PlantFault: Any = WIRE.enum("PlantFault", ("PlantStatus", "FaultCode"), flag=Tru
 PlantFlag: Any = WIRE.enum("PlantFlag", ("PlantStatus", "Flags"), flag=True)
 
 
+_REASONS: tuple[tuple[type[ConfigError], Any], ...] = (
+    (UnreachableWaypointError, Reason.UNREACHABLE),
+    (WaypointInObstacleError, Reason.INSIDE_OBSTACLE),
+    (PathOutsideWorkspaceError, Reason.PATH_LEAVES_WORKSPACE),
+    (NoWayRoundError, Reason.NO_WAY_ROUND),
+    (WaypointNearObstacleError, Reason.NEAR_OBSTACLE),
+    (WaypointNearLimitError, Reason.NEAR_JOINT_LIMIT),
+    (PlanTooFastError, Reason.TOO_FAST),
+)
+"""A task's error and the ControllerAnswer reason it is refused with."""
+
+
 def reason_of(error: ConfigError) -> Any:
-    """The ControllerAnswer reason for a task's error."""
-    if isinstance(error, UnreachableWaypointError):
-        return Reason.UNREACHABLE
-    if isinstance(error, WaypointInObstacleError):
-        return Reason.INSIDE_OBSTACLE
-    if isinstance(error, PathOutsideWorkspaceError):
-        return Reason.PATH_LEAVES_WORKSPACE
-    if isinstance(error, NoWayRoundError):
-        return Reason.NO_WAY_ROUND
-    if isinstance(error, WaypointNearObstacleError):
-        return Reason.NEAR_OBSTACLE
-    if isinstance(error, WaypointNearLimitError):
-        return Reason.NEAR_JOINT_LIMIT
-    if isinstance(error, PlanTooFastError):
-        return Reason.TOO_FAST
-    return Reason.BAD_FIELD
+    """The ControllerAnswer reason for a task's error (``bad_field`` for any other)."""
+    return next((reason for kind, reason in _REASONS if isinstance(error, kind)), Reason.BAD_FIELD)
 
 
 class Counter:
