@@ -20,7 +20,8 @@ from protocol.ops import Mask, Ops, Real
 TURN_LEFT = 1
 TURN_RIGHT = -1
 PLANNED_REST_SPEED = 0.005
-"""m/s: below this the plan is taken to stand still and PT aims at the planned point."""
+"""m/s: below this PT drops the crawl along the plan (AHEAD_SPEED_FRACTION) and the split
+along and across it, whose direction is not defined at a standstill."""
 AHEAD_SPEED_FRACTION = 0.25
 """A TCP ahead of the moving plan slows down to this fraction of the planned speed."""
 AIM_SPARE = 0.0015
@@ -67,7 +68,9 @@ def plan_tracking(
     gap). Along, it is never below AHEAD_SPEED_FRACTION of the planned speed: a TCP ahead of
     the plan (AO may drive it faster than planned) lets the plan catch up at a crawl rather
     than turning round, or standing still while the plan moves. The plan's own turn rate is
-    fed forward. Where the plan is at rest the heading simply aims at the planned point.
+    fed forward. Where the plan (nearly) stands still the wanted velocity is the same sum,
+    steered to as a whole: aiming at the planned point alone dropped the plan's last few mm/s
+    as it came to a rest or left one, and an arm on its reference slowed to a stop there.
     """
     error_x, error_y = reference[0] - position[0], reference[1] - position[1]
     vx, vy = reference_velocity
@@ -89,10 +92,12 @@ def plan_tracking(
     v = speed * ops.max(ops.cos(error), 0.0)
     omega = feedforward + config.heading_gain * error
     if ops.any(at_rest):
-        distance = length(ops, error_x, error_y)
-        error = wrap_angle(ops.atan2(error_y, error_x) - heading)
-        speed = ops.min(config.position_gain * distance, config.speed_max)
-        still = distance < 1e-9
+        wanted_x = vx + config.position_gain * error_x
+        wanted_y = vy + config.position_gain * error_y
+        wanted = length(ops, wanted_x, wanted_y)
+        error = wrap_angle(ops.atan2(wanted_y, wanted_x) - heading)
+        speed = ops.min(wanted, config.speed_max)
+        still = wanted < 1e-9
         v = ops.where(at_rest, ops.where(still, 0.0, speed * ops.max(ops.cos(error), 0.0)), v)
         omega = ops.where(at_rest, ops.where(still, 0.0, config.heading_gain * error), omega)
     return Command(v, omega)

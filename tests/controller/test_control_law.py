@@ -10,6 +10,7 @@ import pytest
 
 from controller.behaviours import (
     AHEAD_SPEED_FRACTION,
+    PLANNED_REST_SPEED,
     TURN_LEFT,
     TURN_RIGHT,
     avoid_obstacle,
@@ -48,6 +49,24 @@ def test_tracking_ahead_of_the_plan_slows_down_instead_of_turning_round() -> Non
     command = plan_tracking(SCALAR, CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
     assert command.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)  # crawls on, never stops
     assert command.omega == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("planned", [0.004, 0.006])
+def test_tracking_a_plan_coming_to_a_rest_keeps_its_speed_either_side_of_the_rest_speed(
+    planned: float,
+) -> None:
+    """Either side of PLANNED_REST_SPEED an arm on its reference moves with the plan (it once
+    aimed at the reference alone below it, and stood still while the plan moved on)."""
+    assert 0.004 < PLANNED_REST_SPEED < 0.006  # the two cases sit either side of it
+    on_plan = plan_tracking(
+        SCALAR, CONFIG, math.pi / 2, (0.3, 0.0), (0.3, 0.0), (0.0, planned), (0.0, 0.0)
+    )
+    assert on_plan.v == pytest.approx(planned)
+    assert on_plan.omega == pytest.approx(0.0)
+    behind = plan_tracking(
+        SCALAR, CONFIG, math.pi / 2, (0.3, -0.001), (0.3, 0.0), (0.0, planned), (0.0, 0.0)
+    )
+    assert behind.v == pytest.approx(planned + CONFIG.position_gain * 0.001)
 
 
 def test_tracking_beside_the_plan_steers_back() -> None:
