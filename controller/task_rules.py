@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from controller.planner import PATH_CHECK_STEP, check_plan, plan_of
+from protocol.config import ControllerConfig
 from protocol.errors import (
     ConfigError,
     NoWayRoundError,
@@ -73,15 +74,15 @@ RULES = (
     ),
     Rule(
         3,
-        "Every waypoint's revolute joints (theta1, theta2, on the task's elbow) are 1 degree "
-        "or more inside their stops.",
+        "Every waypoint's revolute joints (theta1, theta2, on the task's elbow) are "
+        f"{math.degrees(JOINT_MARGIN):g} degree or more inside their stops.",
         (WaypointNearLimitError,),
     ),
     Rule(
         4,
-        "Every waypoint below the obstacle's top (its height plus the inflation) is 8 mm or "
-        "more outside the inflated obstacle (the obstacle grown by the tool radius and the "
-        "margin).",
+        "Every waypoint below the obstacle's top (its height plus the inflation) is "
+        f"{1000 * WAYPOINT_CLEARANCE:g} mm or more outside the inflated obstacle (the obstacle "
+        "grown by the tool radius and the margin).",
         (WaypointInObstacleError, WaypointNearObstacleError),
     ),
     Rule(
@@ -97,8 +98,8 @@ RULES = (
     ),
     Rule(
         7,
-        "The planned path is nowhere faster than 0.6 m/s in the plane (the controller's "
-        "speed_max, the most PT commands).",
+        f"The planned path is nowhere faster than {ControllerConfig().speed_max:g} m/s in the "
+        "plane (the controller's speed_max, the most PT commands).",
         (PlanTooFastError,),
     ),
     Rule(
