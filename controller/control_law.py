@@ -89,6 +89,13 @@ cosine of the angle between them, negated) where the final approach is a loop in
 90 degrees the straight way hands over to the loop, and from 120 degrees it loops."""
 NEAR_STOP = math.radians(5.0)
 """rad: a revolute joint this near its stop has AO check that its way round is still open."""
+WAITING_RATE = 0.5
+"""The plan's rate below which it all but waits for the arm (:func:`approach_pull`)."""
+WAITING_REACH = (0.01, 0.02)
+"""m: within the first of these of the waypoint the plan all but waits for, and up to the second,
+the final approach takes over (in full, then fading) wherever the straight way is clear
+(:func:`approach_pull`).
+From farther, the final approach's pull (gain times the way) jerked arms lagging a fast plan."""
 GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at
@@ -365,12 +372,21 @@ def step(
     # The waypoint the plan waits for: p_j-1 until the TCP has passed it, then p_j.
     waiting_next = ops.max(index - 1, ops.min(reached + 1, index)) == index
     waited = ops.where(waiting_next, stage.point, stage.point_before)
-    pull = (1.0 - rate) * ops.where(waiting_next, depth_next, depth_before)
+    to_waited = ops.where(waiting_next, to_next, to_before)
     goal = _goal(ops, stage, progress, behind)
     heading = state.heading
     heading_cos, heading_sin = ops.cos(heading), ops.sin(heading)
     measurement = sense(
         ops, law.obstacle, config.sensing_range, tcp, goal, (heading_cos, heading_sin)
+    )
+    pull = approach_pull(
+        ops,
+        rate,
+        ops.where(waiting_next, depth_next, depth_before),
+        to_waited,
+        measurement.clearance,
+        ops.where(waiting_next, stage.room, stage.room_before),
+        ops.where(waiting_next, stage.clear_way, stage.clear_way_before),
     )
     min_distance = ops.min(measurement.d_left, measurement.d_right)
 
@@ -428,7 +444,7 @@ def step(
         config.position_gain,
         waited,
         ops.where(waiting_next, stage.leaving, stage.leaving_before),
-        ops.where(waiting_next, to_next, to_before),
+        to_waited,
         tcp,
         ops.where(waiting_next, stage.loop_radius, stage.loop_radius_before),
     )
@@ -667,6 +683,54 @@ def _loop(
         straight_y + share * (speed * way_y - straight_y),
         share,
     )
+
+
+def approach_pull(
+    ops: Ops,
+    rate: Real,
+    depth: Real,
+    away: Real,
+    clearance: Real,
+    room: Real,
+    clear_way: Real,
+) -> Real:
+    """How far the final approach takes over from the blended command, 0..1: as far as the
+    plan waits (1 - ``rate``), in the waited waypoint's free room (``depth``, :func:`_depth`)
+    and, once the plan all but waits (``rate`` below WAITING_RATE) for an arm within
+    WAITING_REACH of it (``away``), wherever the straight way to it is clear.
+
+    The straight way is clear where the discs the obstacle leaves free round the TCP
+    (``clearance``) and round the waypoint (``room``) cover it: their radii add up to more than
+    the way, by ``clear_way`` in full. Without this an arm carried just past a waypoint near
+    the obstacle, outside its free room, was left to PT, which saw it ahead of a reference
+    waiting short of the waypoint and crawled on at a share of a plan's speed that the wait
+    took to nothing: a stop, until the plan had nearly stopped.
+    """
+    in_room = (1.0 - rate) * depth
+    return ops.branch(
+        (rate < WAITING_RATE) & (away < WAITING_REACH[1]),
+        _waiting_pull,
+        in_room,
+        ops,
+        rate,
+        in_room,
+        away,
+        clearance + room - away,
+        clear_way,
+    )
+
+
+def _waiting_pull(
+    ops: Ops, rate: Real, in_room: Real, away: Real, covered: Real, clear_way: Real
+) -> Real:
+    """:func:`approach_pull` where the plan all but waits for an arm within WAITING_REACH
+    (``covered``: by how much the two free discs cover the straight way)."""
+    low, high = WAITING_REACH
+    waiting = (1.0 - smoothstep(ops, rate / WAITING_RATE)) * (
+        1.0 - smoothstep(ops, (away - low) / (high - low))
+    )
+    clear = smoothstep(ops, covered / clear_way)
+    return ops.max(in_room, (1.0 - rate) * waiting * clear)
 
 
 def height_lead(ops: Ops, ahead: Mask, to_next: Real, reference_to_next: Real) -> Real:

@@ -19,8 +19,11 @@ from controller.behaviours import (
 from controller.control_law import (
     PASSED,
     RATE_CHANGE,
+    WAITING_RATE,
+    WAITING_REACH,
     ControlLaw,
     approach_limited,
+    approach_pull,
     final_approach,
     height_lead,
     reach_limited,
@@ -345,6 +348,30 @@ def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
     assert approach == pytest.approx(
         (CONFIG.position_gain * -0.004, CONFIG.position_gain * 0.001, 0.0)
     )
+
+
+def test_final_approach_reaches_past_the_free_room_where_the_plan_waits_and_way_is_clear() -> (
+    None
+):
+    """An arm 10 mm from a waypoint 8 mm from the obstacle (outside its free room): where the
+    discs the obstacle leaves free round the two cover the straight way, the final approach
+    takes over once the plan waits; not while the plan runs on, nor where the discs leave a
+    gap, nor from beyond WAITING_REACH."""
+    room = clear_way = 0.008
+    outside_room = 0.0  # _depth of an arm outside the free room
+    near = WAITING_REACH[0]
+
+    def pull(rate: float, away: float, clearance: float) -> float:
+        return float(approach_pull(SCALAR, rate, outside_room, away, clearance, room, clear_way))
+
+    assert pull(0.0, near, 0.012) == pytest.approx(1.0)  # 12 + 8 - 10 >= clear_way: in full
+    assert 0.0 < pull(0.0, near, 0.005) < 1.0  # covered by 3 mm: in part
+    assert pull(0.0, near, 0.0019) == 0.0  # 1.9 + 8 < 10: a gap the straight way could cross
+    assert pull(WAITING_RATE, near, 0.012) == 0.0  # the plan runs on: PT's, not the approach's
+    assert 0.0 < pull(0.0, (near + WAITING_REACH[1]) / 2, 0.05) < 1.0
+    assert pull(0.0, WAITING_REACH[1], 0.05) == 0.0  # from farther: PT brings it nearer first
+    # In the free room the approach acts as far as the plan waits, clear way or not.
+    assert approach_pull(SCALAR, 0.25, 1.0, 0.001, 0.0, room, clear_way) == pytest.approx(0.75)
 
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:

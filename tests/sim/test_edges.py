@@ -43,3 +43,21 @@ def test_an_edge_familys_tasks_sit_just_either_side_of_its_rule(family: Family) 
             measures = run.measures
             assert measures.outcome == "done", (task.name, mode, measures.outcome)
             assert measures.max_waypoint_miss <= 0.002 and measures.stops == 0, task.name
+
+
+@pytest.mark.parametrize(
+    ("index", "mode"), [(373, Mode.FUZZY), (387, Mode.CONVENTIONAL), (419, Mode.FUZZY)]
+)
+def test_an_arm_carried_past_a_waypoint_beside_the_obstacle_comes_back_onto_it_without_a_stop(
+    index: int, mode: Mode
+) -> None:
+    """AO (or the hard switch) left the arm 10-17 mm past a waypoint 8 mm from the obstacle,
+    outside its free room, while the plan waited short of it: PT crawled on at a share of the
+    waiting plan's speed and the arm stood still (a stop, margin 0) until the plan all but
+    stopped. The final approach now takes it back where the straight way is clear."""
+    task = generate_scenario_at(0, index, family=Family.EDGE_OBSTACLE)
+    check_task(task)
+    measures = simulate_batch([task], mode)[0].measures
+    assert measures.outcome == "done"
+    assert measures.stops == 0 and measures.stop_margin > 1.0, measures.stop_margin
+    assert measures.max_waypoint_miss <= 0.002
