@@ -629,7 +629,10 @@ def final_approach(
     plan, at the same speed, until the straight way no longer points against the plan; it
     then comes in across the plan. The two hand over by the angle between the straight way
     and the plan's way out (LOOP_AGAINST), not by where the arm is: handed over along the
-    plan, the loop's way out and the straight way back cancelled just past the waypoint.
+    plan, the loop's way out and the straight way back cancelled just past the waypoint. The
+    handover turns the way the arm goes from the one to the other at the same speed: added
+    as vectors, the two nearly cancelled where they pointed apart, and an arm a few
+    millimetres off the waypoint stood still.
     """
     to_x, to_y = point[0] - tcp[0], point[1] - tcp[1]
     straight_x, straight_y = gain * to_x, gain * to_y
@@ -666,23 +669,19 @@ def _loop(
     """:func:`final_approach` where it is a loop, ``share`` of the way."""
     to_x, to_y = to_point
     out_x, out_y = leaving
-    straight_x, straight_y = gain * to_x, gain * to_y
     side = ops.where(out_x * to_y - out_y * to_x <= 0.0, 1.0, -1.0)
     radial_x = tcp[0] - (point[0] - side * loop_radius * out_y)
     radial_y = tcp[1] - (point[1] + side * loop_radius * out_x)
     radius = length(ops, radial_x, radial_y)
-    valid = radius != 0.0
-    divisor = ops.where(valid, radius, 1.0)
     off = (radius - loop_radius) / loop_radius
-    way_x = (-side * radial_y - off * radial_x) / divisor
-    way_y = (side * radial_x - off * radial_y) / divisor
-    speed = gain * away / ops.where(valid, length(ops, way_x, way_y), 1.0)
-    share = ops.where(valid, share, 0.0)
-    return (
-        straight_x + share * (speed * way_x - straight_x),
-        straight_y + share * (speed * way_y - straight_y),
-        share,
-    )
+    # Round the circle, and in towards it or out as far as the arm is off it.
+    way_x = -side * radial_y - off * radial_x
+    way_y = side * radial_x - off * radial_y
+    share = ops.where(radius != 0.0, share, 0.0)
+    straight = ops.atan2(to_y, to_x)
+    angle = straight + share * wrap_angle(ops.atan2(way_y, way_x) - straight)
+    speed = gain * away
+    return (speed * ops.cos(angle), speed * ops.sin(angle), share)
 
 
 def approach_pull(

@@ -326,6 +326,23 @@ def test_an_arm_past_the_waypoint_is_looped_round_not_brought_back_against_the_p
     assert max(distances) > math.hypot(along, across)  # round the waypoint, not at it
 
 
+def test_the_handover_to_the_loop_turns_the_way_and_keeps_the_speed() -> None:
+    """Across the handover from the straight way to the loop the arm goes at the gain times
+    its distance: the two ways point apart there (on the far side of the loop's circle), and
+    added as vectors they all but cancelled (edge_reach-0-375: 5 of 37 mm/s, a stop)."""
+    point, leaving, radius = (0.0, 0.0, 0.2), (1.0, 0.0), 0.003
+    away = 0.0037
+    shares = []
+    for against in np.linspace(0.0, 0.5, 11):  # the cosine of the angle against the way out
+        tcp = (against * away, math.sqrt(1.0 - against**2) * away, 0.2)
+        vx, vy, share = final_approach(
+            SCALAR, CONFIG.position_gain, point, leaving, away, tcp, radius
+        )
+        shares.append(share)
+        assert math.hypot(vx, vy) == pytest.approx(CONFIG.position_gain * away)
+    assert shares[0] == 0.0 and shares[-1] == 1.0 and 0.0 < shares[5] < 1.0
+
+
 def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
     law = ControlLaw.for_scenario(load_scenario("reference"))
     speed_along, speed_across, distances = _come_onto_waypoint(law, 1, -0.004, 0.002)
@@ -350,9 +367,7 @@ def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:
     )
 
 
-def test_final_approach_reaches_past_the_free_room_where_the_plan_waits_and_way_is_clear() -> (
-    None
-):
+def test_final_approach_reaches_past_the_free_room_where_the_plan_waits_and_way_is_clear() -> None:
     """An arm 10 mm from a waypoint 8 mm from the obstacle (outside its free room): where the
     discs the obstacle leaves free round the two cover the straight way, the final approach
     takes over once the plan waits; not while the plan runs on, nor where the discs leave a
