@@ -100,6 +100,10 @@ CONFIRMED = 8
 LOST_WAY = 3
 """Echoes in a row off a way through the commands after which the plant is taken not to be
 on it."""
+UNRECORDED = -1
+"""The way of a plant echoing a command sent before the recording began: before the first
+usable command recorded (its next echo may be one of the first :data:`MAX_SKIP` of them, as
+from any way, or another command sent before the recording)."""
 LATCHED = ("fault", "estop")
 UP = ("ready", "running")
 """The node states of a system that is up: ready for a task, or running one."""
@@ -393,11 +397,12 @@ def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
     command) and a duplicate (its counter is its first's).
 
     After a reset or a restart of the plant, and at a recording's start, the echoes are
-    followed from every command with the counter of the first one recorded from
-    :data:`BACKLOG` before it to :data:`AHEAD` after it, and along every way through the
-    commands that keeps within AHEAD of the echoes. An echo is judged when one way is left
-    that the last :data:`CONFIRMED` echoes followed, and the next echo follows it too."""
+    followed from every command the first one may echo (:func:`_anchors`), and along every
+    way through the commands that keeps within AHEAD of the echoes. An echo is judged when
+    one way is left that the last :data:`CONFIRMED` echoes followed, and the next echo
+    follows it too."""
     found = []
+    start = seen[0].t if seen else 0.0
     states = {id(frame): joints[2] for frame, joints in _states(seen)}
     commands = [
         (frame.t, frame.counter)
@@ -439,16 +444,18 @@ def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
             continue
         last_echo = echo
         if not ways:
-            ways = dict.fromkeys(_near(commands, echo, frame.t), 0)
+            ways = _anchors(commands, echo, frame.t, start)
             continue
         onward: dict[int, int] = {}
         for way, missed in ways.items():
             step = _next(commands, way, echo)
             if step is not None and commands[step][0] <= frame.t + AHEAD:
                 onward[step] = 0
-            elif missed + 1 < LOST_WAY:  # a command the recording lacks, or a bad one taken
-                onward[way] = missed + 1
-        advanced = len(onward) == 1 and 0 in onward.values()
+            elif way != UNRECORDED and missed + 1 < LOST_WAY:
+                onward[way] = missed + 1  # a command the recording lacks, or a bad one taken
+        if UNRECORDED in ways and frame.t - BACKLOG < start:
+            onward[UNRECORDED] = 0  # another command sent before the recording began
+        advanced = len(onward) == 1 and UNRECORDED not in onward and 0 in onward.values()
         if advanced and suspect is not None and len(ways) == 1:
             found.append(suspect)
         suspect = None
@@ -462,8 +469,27 @@ def bad_frames_acted(seen: Sequence[Seen]) -> list[Violation]:
                     "failed its CRC or counter carried",
                 )
         streak = streak + 1 if advanced else 0
-        ways = onward or dict.fromkeys(_near(commands, echo, frame.t), 0)
+        ways = onward or _anchors(commands, echo, frame.t, start)
     return found
+
+
+def _anchors(
+    commands: Sequence[tuple[float, int | None]], echo: int, t: float, start: float
+) -> dict[int, int]:
+    """The ways a plant's first echo (at ``t``, of counter ``echo``) may start, none missed:
+    each command :func:`_near` it, and, when the recording began (its first frame, at
+    ``start``) less than :data:`BACKLOG` before it, :data:`UNRECORDED` too. The counter is 4
+    bits: a plant working through a backlog a cycle or more behind the commands recorded echoes
+    those of an earlier cycle, sent before the recording began, and its echoes fit the
+    recorded cycle after it as well, commands alike, until the plant catches up (beyond
+    :data:`AHEAD`) or a command one cycle lacks tells them apart. Anchored on the recorded
+    cycle alone, the checker followed a plant one cycle ahead of where it was, and judged an
+    echo of the earlier cycle against the later one's corrupt command (seed 73: the first
+    echo, 3, with the later cycle's 3 the only one recorded near it)."""
+    ways = dict.fromkeys(_near(commands, echo, t), 0)
+    if t - BACKLOG < start:
+        ways[UNRECORDED] = 0
+    return ways
 
 
 def _near(commands: Sequence[tuple[float, int | None]], echo: int, t: float) -> list[int]:

@@ -29,6 +29,7 @@ from protocol.world import World
 from recorder.mcap_can import MCAPWriter
 from recorder.recover import recover
 from soak.check import (
+    BACKLOG,
     ORDER_SKEW,
     RECOVERY_BOUND,
     Worlds,
@@ -241,8 +242,17 @@ def test_an_estop_every_node_must_say() -> None:
     assert [(v.invariant, "plant" in v.detail) for v in found] == [("estop_latch", True)]
 
 
-def test_the_plant_acting_on_a_corrupt_or_stale_command_is_caught() -> None:
+def recording_before_the_commands() -> Bus:
+    """A recording begun over :data:`BACKLOG` before the controller's first command: the plant
+    echoes no command sent before it (which its first echoes would fit as well)."""
     bus = Bus()
+    bus.status("plant", "ready")
+    bus.t += BACKLOG
+    return bus
+
+
+def test_the_plant_acting_on_a_corrupt_or_stale_command_is_caught() -> None:
+    bus = recording_before_the_commands()
     for _ in range(20):
         bus.tick()
     assert bad_frames_acted(bus.seen()) == []
@@ -259,7 +269,7 @@ def test_the_plant_acting_on_a_corrupt_or_stale_command_is_caught() -> None:
 
 
 def test_a_reordered_command_acted_on_is_caught() -> None:
-    bus = Bus()
+    bus = recording_before_the_commands()
     for _ in range(20):
         bus.tick()
     late = bus.next(COMMAND)
@@ -278,7 +288,7 @@ def test_a_reordered_command_acted_on_is_caught() -> None:
 def test_the_recorders_interleaving_of_the_two_senders_does_not_matter() -> None:
     """Each sender's frames are in order; the plant's answers recorded well before the
     commands they answer (a paused recorder, a flood) are no violation."""
-    bus = Bus()
+    bus = recording_before_the_commands()
     for _ in range(20):
         bus.tick()
     answers = []
@@ -299,6 +309,64 @@ def test_a_reset_plant_may_echo_zero_before_its_first_command() -> None:
     bus.state(0)
     bus.tick()
     assert bad_frames_acted(bus.seen()) == []
+
+
+def a_plant_a_cycle_behind(ticks: int, acted_on: int | None = None) -> Bus:
+    """The start of the recording where a soak (seed 73) found a violation that was none. The
+    recorder, starting, got the controller's commands in bursts: 24 within 0.4 ms, counters
+    4..15 then 0..11, and the next ones 58 ms in; meanwhile the plant, working through its
+    backlog, echoed one a millisecond from 25 ms in, a 16-counter cycle behind them: from 3 (the
+    first cycle's, sent before the recording began), through 4..15 and 0..12, skipping the
+    second cycle's 13, which failed its CRC, to 14, ... The controller sends every 2 ms,
+    ``ticks`` commands after the first 24, and the plant, once caught up, answers each 1 ms
+    after it. Three commands in a row are lost on the wire 1.2 s in: cycles all alike fit the
+    echoes equally, and a wire's losses tell which one the plant is on. With ``acted_on``,
+    that tick's command failed its CRC and the plant took it."""
+    bus = Bus()
+    start = bus.t
+    commands = []  # sent, recorded, counter, passes its CRC, taken by the plant
+    for index, counter in enumerate([*range(4, 16), *range(12)]):
+        recorded = start + 0.0004 * index / 23
+        commands.append((recorded - 0.048, recorded, counter, True, True))
+    for tick in range(ticks):
+        if tick not in (600, 601, 602):
+            good = tick not in (1, acted_on)
+            sent = start + 0.002 * (tick + 1)
+            recorded = max(sent, start + 0.058 + 0.00002 * tick)
+            commands.append((sent, recorded, (12 + tick) % 16, good, good or tick == acted_on))
+    echoes = [(start + 0.025, 3)]
+    for sent, _, counter, _, taken in commands:
+        if taken:
+            echoes.append((max(echoes[-1][0], sent) + 0.001, counter))
+    events = sorted(
+        [(t, False, counter, good) for _, t, counter, good, _ in commands]
+        + [(t, True, echo, True) for t, echo in echoes]
+    )
+    record = COMMAND.Record(Enable=1, Theta1Rate=0.1, Theta2Rate=0.0, D3Rate=0.0)
+    for t, answer, counter, good in events:
+        bus.t = t
+        if answer:
+            bus.state(counter)
+            continue
+        data = bytearray(COMMAND.encode(record, counter))
+        data[0] ^= 0 if good else 0x01
+        bus.send(COMMAND.frame_id, bytes(data), 0.0)
+    return bus
+
+
+def test_a_plant_a_cycle_behind_at_a_recordings_start_is_not_followed_a_cycle_ahead() -> None:
+    """Its first echo, 3, fits the only 3 recorded near it (the second cycle's) and the one sent
+    before the recording began alike; the echoes after it fit both cycles until the plant
+    catches up, and the first cycle's 13 is no bad frame acted on."""
+    assert bad_frames_acted(a_plant_a_cycle_behind(1300).seen()) == []
+
+
+def test_after_a_start_a_cycle_behind_a_bad_frame_acted_on_is_still_caught() -> None:
+    bus = a_plant_a_cycle_behind(1300, acted_on=1200)
+    found = bad_frames_acted(bus.seen())
+    assert [v.invariant for v in found] == ["bad_frame_acted"]
+    assert f"counter {(12 + 1200) % 16}," in found[0].detail
+    assert abs(found[0].t - (bus.frames[0].timestamp + 0.002 * 1201)) < 0.01
 
 
 def test_an_outage_longer_than_the_bound_is_caught() -> None:
