@@ -92,10 +92,10 @@ NEAR_STOP = math.radians(5.0)
 WAITING_RATE = 0.5
 """The plan's rate below which it all but waits for the arm (:func:`approach_pull`)."""
 WAITING_REACH = (0.01, 0.02)
-"""m: within the first of these of the waypoint the plan all but waits for, and up to the second,
-the final approach takes over (in full, then fading) wherever the straight way is clear
-(:func:`approach_pull`).
-From farther, the final approach's pull (gain times the way) jerked arms lagging a fast plan."""
+"""m: the final approach takes over wherever the straight way is clear (:func:`approach_pull`)
+for an arm within the first of these of the waypoint the plan all but waits for, fading out
+to the second. From farther, its pull (the gain times the way) jerked arms lagging a fast
+plan."""
 GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at
