@@ -100,6 +100,11 @@ GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at
 p_j."""
+GOAL_BACK = (0.8, 0.95)
+"""The cosine of the angle at p_j between the arm and p_j+1 over which DM's look-ahead is
+undone too, for an arm that has not passed p_j: where the plan turns back at p_j, the point
+sliding from p_j to p_j+1 would pass by the arm still coming in, and the direction DM
+measures from (and fuzzy's k_C with it) swing half a turn in a few ticks."""
 
 
 class Stage(NamedTuple):
@@ -373,7 +378,7 @@ def step(
     waiting_next = ops.max(index - 1, ops.min(reached + 1, index)) == index
     waited = ops.where(waiting_next, stage.point, stage.point_before)
     to_waited = ops.where(waiting_next, to_next, to_before)
-    goal = _goal(ops, stage, progress, behind)
+    goal = _goal(ops, stage, progress, behind, tcp, to_next)
     heading = state.heading
     heading_cos, heading_sin = ops.cos(heading), ops.sin(heading)
     measurement = sense(
@@ -548,24 +553,40 @@ def _wanted_rate(ops: Ops, stage: Stage, progress: Real, behind: Real, away_pass
     return 1.0 - hold
 
 
-def _goal(ops: Ops, stage: Stage, progress: Real, behind: Real) -> tuple[Real, Real]:
+def _goal(
+    ops: Ops,
+    stage: Stage,
+    progress: Real,
+    behind: Real,
+    tcp: tuple[Real, Real, Real],
+    to_next: Real,
+) -> tuple[Real, Real]:
     """The next waypoint p_j that DM looks towards.
 
     ``behind``: how far the arm is off the way from the reference to p_j (half of what going
     by the TCP adds to the distance, -inf once p_j is passed). Over the last GOAL_HANDOVER of
     a segment the point slides from p_j to p_j+1, so that the direction DM measures from does
     not jump when the plan moves on; but only as far as the arm keeps to the way to p_j
-    (GOAL_KEPT): an arm still on its way round the obstacle keeps looking at p_j.
+    (GOAL_KEPT): an arm still on its way round the obstacle keeps looking at p_j; and not
+    where p_j+1 lies back the way the arm comes in (GOAL_BACK; ``tcp``, ``to_next``: the
+    TCP and its plane distance to p_j).
     """
     low, high = GOAL_KEPT
     handover = stage.handover
     share = smoothstep(ops, (progress - stage.time + handover) / handover) * (
         1.0 - smoothstep(ops, (behind - low) / (high - low))
     )
+    slide_x, slide_y = stage.goal_slide
+    back = (slide_x * (tcp[0] - stage.point[0]) + slide_y * (tcp[1] - stage.point[1])) / ops.max(
+        length(ops, slide_x, slide_y) * to_next, 1e-9
+    )
+    low, high = GOAL_BACK
+    turned_back = ops.where(behind > -math.inf, smoothstep(ops, (back - low) / (high - low)), 0.0)
+    share = share * (1.0 - turned_back)
     goal_x, goal_y = stage.point[0], stage.point[1]
     return (
-        ops.where(stage.inner, goal_x + share * stage.goal_slide[0], goal_x),
-        ops.where(stage.inner, goal_y + share * stage.goal_slide[1], goal_y),
+        ops.where(stage.inner, goal_x + share * slide_x, goal_x),
+        ops.where(stage.inner, goal_y + share * slide_y, goal_y),
     )
 
 

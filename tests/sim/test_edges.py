@@ -4,6 +4,8 @@ of sim/study/refusals.py; the inside twins done in both modes."""
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import pytest
 
 from controller.task_rules import check_task, rule_of
@@ -11,6 +13,7 @@ from protocol.errors import ConfigError
 from protocol.scenario import Mode
 from sim.batch import simulate_batch
 from sim.generator import Family, generate_scenario_at
+from sim.simulation import simulate
 from sim.study.refusals import Check, brute_force
 
 RULE = {
@@ -61,3 +64,20 @@ def test_an_arm_carried_past_a_waypoint_beside_the_obstacle_comes_back_onto_it_w
     assert measures.outcome == "done"
     assert measures.stops == 0 and measures.stop_margin > 1.0, measures.stop_margin
     assert measures.max_waypoint_miss <= 0.002
+
+
+@pytest.mark.parametrize(("family", "index"), [(Family.EDGE_LIMIT, 824), (Family.EDGE_SPEED, 806)])
+def test_where_the_plan_turns_back_the_fuzzy_k_c_does_not_jump_as_dm_looks_on(
+    family: Family, index: int
+) -> None:
+    """The plan turns back at a waypoint: the point DM looks at, sliding on to the following
+    waypoint, passed by the arm still coming in, the direction DM measures from swung half a
+    turn in a few ticks, and k_C with it (0.17 to 1 in one tick; fuzzy's peak jerk 819 against
+    the hard switch's 715 m/s^3). DM now keeps looking at the waypoint there."""
+    task = generate_scenario_at(0, index, family=family)
+    check_task(task)
+    fuzzy = simulate(task, Mode.FUZZY)
+    conventional = simulate(task, Mode.CONVENTIONAL)
+    k_c = fuzzy.log["k_c"]
+    assert max(abs(later - earlier) for earlier, later in pairwise(k_c)) < 0.1
+    assert fuzzy.measures.peak_jerk < conventional.measures.peak_jerk
