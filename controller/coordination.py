@@ -23,6 +23,11 @@ AHEAD_NONE = -0.2
 HEIGHT_FADE = 0.01
 """m below the obstacle's top (its height plus the inflation) from which AO counts fully in
 the fuzzy mode; at the top, where DM stops seeing the obstacle, not at all."""
+WAY_PASSING_FULL = 0.02
+"""m: AO counts fully in the fuzzy mode where the straight way to p_j passes the obstacle
+this near or nearer (DM's ``passing``), fading to nothing where it passes as far as the
+conventional switch's distance: there the hard switch never switches, and an obstacle the way
+keeps clear of does not matter (AO would only draw the arm off a plan that clears it)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,10 +66,12 @@ def weights(
     that AO fades in and out instead of switching: fully within half the sensing range, not
     at all at the range; fully while the obstacle is ahead, towards p_j or the way the TCP
     moves (or the TCP is inside it), fading as it falls behind (smoothsteps of the distance
-    and of the larger of ``ahead`` and ``toward``); not at all deep in a waypoint's free
-    room; and fully from HEIGHT_FADE below the obstacle's top (``below_top``: how far the TCP
-    is below it), not at all at the top, where DM stops seeing it (an arm rising over a low
-    obstacle lost AO in one tick, its peak jerk ten times the hard switch's).
+    and of the larger of ``ahead`` and ``toward``); fully where the straight way to p_j
+    passes the obstacle within WAY_PASSING_FULL, not at all where it keeps the switch
+    distance from it; not at all deep in a waypoint's free room; and fully from HEIGHT_FADE
+    below the obstacle's top (``below_top``: how far the TCP is below it), not at all at the
+    top, where DM stops seeing it (an arm rising over a low obstacle lost AO in one tick, its
+    peak jerk ten times the hard switch's).
     Conventional: PT alone, or AO alone while an obstacle ahead is closer than the switch
     distance (and the TCP is not in the free room of its waypoint).
     """
@@ -87,6 +94,7 @@ def weights(
         ops.max(measurement.ahead, measurement.toward),
         at_waypoint,
         below_top,
+        measurement.passing,
     )
     return (
         ops.where(fuzzy, k_t, ops.where(switched, 0.0, 1.0)),
@@ -103,6 +111,7 @@ def _fuzzy_weights(
     facing: Real,
     at_waypoint: Real,
     below_top: Real,
+    passing: Real,
 ) -> tuple[Real, Real]:
     """:func:`weights` of the fuzzy coordinator with an obstacle present."""
     k_t, k_c = infer(ops, coordination.inference, min_distance, beta)
@@ -110,7 +119,9 @@ def _fuzzy_weights(
     half = sensing_range / 2.0
     relevance = smoothstep(ops, (sensing_range - min_distance) / half)
     fading = smoothstep(ops, (facing - AHEAD_NONE) / (AHEAD_FULL - AHEAD_NONE))
-    relevance = ops.where(clearance > 0.0, relevance * fading, relevance)
+    fade = coordination.switch_distance
+    in_the_way = smoothstep(ops, (fade - passing) / (fade - WAY_PASSING_FULL))
+    relevance = ops.where(clearance > 0.0, relevance * fading * in_the_way, relevance)
     height = smoothstep(ops, below_top / HEIGHT_FADE)
     return k_t, k_c * relevance * height * (1.0 - at_waypoint)
 

@@ -70,6 +70,9 @@ class ObstacleMeasurement(NamedTuple):
     ahead: Real
     toward: Real = -1.0
     to_nearest: tuple[Real, Real] = (0.0, 0.0)
+    passing: Real = math.inf
+    """How near the straight way from the TCP to the goal passes the obstacle, measured to
+    the tangent point nearer that way (0 where the way is blocked or the TCP inside)."""
 
     @property
     def min_distance(self) -> Real:
@@ -209,6 +212,15 @@ def _sense_present(
     right = wrap_angle(ops.atan2(right_y - py, right_x - px) - goal_angle)
     beta = ops.min(abs(left), abs(right))
     beta = ops.where((left > 0.0) & (right < 0.0), -beta, beta)
+    nearer_left = abs(left) <= abs(right)
+    tangent = length(
+        ops,
+        ops.where(nearer_left, left_x, right_x) - px,
+        ops.where(nearer_left, left_y, right_y) - py,
+    )
+    passing = ops.where(
+        outside & ops.not_(blocked), _way_passing(ops, tangent, goal_distance, beta), 0.0
+    )
     return ObstacleMeasurement(
         ops.full(clearance, True),
         clearance,
@@ -219,6 +231,20 @@ def _sense_present(
         ahead,
         toward,
         to_nearest,
+        passing,
+    )
+
+
+def _way_passing(ops: Ops, tangent: Real, goal_distance: Real, beta: Real) -> Real:
+    """How near the way from the TCP to the goal (``goal_distance`` long, ``beta`` off the
+    tangent ``tangent`` long) comes to the tangent point: the ray's distance from it, or the
+    goal's where the way ends before the ray's nearest point. Measured on the ray alone, it
+    fell fast as a near goal's direction turned, and k_C pulsed."""
+    angle = ops.min(ops.max(beta, 0.0), math.pi / 2.0)
+    cos = ops.cos(angle)
+    to_end = tangent * tangent + goal_distance * goal_distance - 2.0 * tangent * goal_distance * cos
+    return ops.where(
+        goal_distance < tangent * cos, ops.sqrt(ops.max(to_end, 0.0)), tangent * ops.sin(angle)
     )
 
 

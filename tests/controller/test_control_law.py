@@ -28,7 +28,7 @@ from controller.control_law import (
     height_lead,
     reach_limited,
 )
-from controller.coordination import HEIGHT_FADE, Coordination, weights
+from controller.coordination import HEIGHT_FADE, WAY_PASSING_FULL, Coordination, weights
 from controller.fuzzy import RuleBase
 from controller.obstacle import ObstacleMeasurement, measure
 from protocol.config import ControllerConfig, RobotConfig
@@ -152,6 +152,28 @@ def test_fuzzy_avoidance_fades_out_below_the_obstacles_top_not_at_it() -> None:
     assert full > fading[0] > fading[1] > fading[2] > fading[3] == 0.0
     above = measure(obstacle, (0.44, 0.0, top + 0.001), (0.7, 0.0), 0.5)
     assert weights(SCALAR, coordination, True, above, above.min_distance, 0.0, -0.001)[1] == 0.0
+
+
+def test_fuzzy_avoidance_counts_where_the_way_passes_near_not_where_it_keeps_clear() -> None:
+    """k_C in full where the straight way to p_j passes within WAY_PASSING_FULL of the
+    obstacle, none where it passes as far as the switch distance, falling in between (AO drew
+    arms 20 mm off a plan that passed 55 mm away, where the hard switch never switches)."""
+    obstacle = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02)
+    coordination = Coordination.of(sensing_range=0.5, switch_distance=0.05)
+    near = measure(obstacle, (0.44, 0.0, 0.2), (0.7, 0.0), 0.5)
+
+    def k_c(passing: float) -> float:
+        seen = near._replace(passing=passing)
+        return weights(SCALAR, coordination, True, seen, seen.min_distance, 0.0, 1.0)[1]
+
+    full = k_c(0.0)
+    assert full > 0.5 and k_c(WAY_PASSING_FULL) == full
+    assert k_c(WAY_PASSING_FULL + 0.0005) < full
+    assert k_c(0.05 - 0.0005) > 0.0 and k_c(0.05) == 0.0 == k_c(0.2)
+    between = [
+        k_c(WAY_PASSING_FULL + share * (0.05 - WAY_PASSING_FULL)) for share in (0.25, 0.5, 0.75)
+    ]
+    assert full > between[0] > between[1] > between[2] > 0.0
 
 
 @pytest.mark.parametrize("mode", list(Mode))

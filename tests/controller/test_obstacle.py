@@ -92,6 +92,31 @@ def test_goal_short_of_the_obstacle_is_not_blocked() -> None:
     assert seen.beta < 0.0  # ... though the direction to it points into the obstacle
 
 
+def test_the_way_passes_the_obstacle_as_near_as_its_nearer_end_comes_to_the_tangent_point() -> None:
+    """``passing``: 0 where the way to the goal is blocked; the ray's distance from the tangent
+    point for a goal beyond the ray's nearest point; the goal's own distance from it for a
+    goal short of that, larger, and meeting the ray's without a jump."""
+    obstacle = EllipticCylinder(0.4, 0.0, 0.1, 0.1, 0.1, inflation=0.02)  # a circle, r 0.07
+    tcp = (0.2, 0.0, 0.05)
+    assert measure(obstacle, tcp, (0.6, 0.0), SENSING_RANGE).passing == 0.0
+    tangent = math.sqrt(0.2**2 - 0.07**2)
+    edge = math.asin(0.07 / 0.2)  # the tangent's angle off the line to the centre
+    ray = edge + 0.1  # beta 0.1 to the left of the tangent
+    foot = tangent * math.cos(0.1)
+
+    def passing(distance: float) -> float:
+        goal = (tcp[0] + distance * math.cos(ray), tcp[1] + distance * math.sin(ray))
+        seen = measure(obstacle, tcp, goal, SENSING_RANGE)
+        assert not seen.blocked and seen.beta == pytest.approx(0.1)
+        return seen.passing
+
+    beyond = tangent * math.sin(0.1)
+    assert passing(foot + 0.05) == pytest.approx(beyond) == passing(foot + 0.2)
+    short = 0.5 * foot
+    assert passing(short) == pytest.approx(math.dist((short, 0.0), (foot, beyond)))
+    assert passing(short) > passing(0.9 * foot) > passing(foot - 1e-6) == pytest.approx(beyond)
+
+
 @settings(max_examples=200, deadline=None)
 @given(
     obstacle=obstacles(),

@@ -81,3 +81,17 @@ def test_where_the_plan_turns_back_the_fuzzy_k_c_does_not_jump_as_dm_looks_on(
     k_c = fuzzy.log["k_c"]
     assert max(abs(later - earlier) for earlier, later in pairwise(k_c)) < 0.1
     assert fuzzy.measures.peak_jerk < conventional.measures.peak_jerk
+
+
+def test_where_the_way_keeps_clear_of_the_obstacle_fuzzy_leaves_the_arm_to_pt() -> None:
+    """The way to a waypoint on the outer reach passes 55 mm from the obstacle, where the hard
+    switch never switches: Table 2 still gave AO k_C 0.8 at 70-130 mm, AO drew the arm 20 mm
+    off the plan, and it came late onto the waypoint and circled onto it (peak jerk 233
+    against the hard switch's 40 m/s^3)."""
+    task = generate_scenario_at(0, 825, family=Family.EDGE_REACH)
+    check_task(task)
+    fuzzy = simulate(task, Mode.FUZZY)
+    conventional = simulate(task, Mode.CONVENTIONAL)
+    assert max(fuzzy.log["k_c"]) < 0.5
+    assert fuzzy.measures.peak_jerk < 1.01 * conventional.measures.peak_jerk
+    assert fuzzy.measures.stops == 0 and fuzzy.measures.max_waypoint_miss <= 0.002
