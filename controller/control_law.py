@@ -444,17 +444,33 @@ def step(
     vx, vy = approach_limited(
         ops, config, blended.v * heading_cos, blended.v * heading_sin, measurement
     )
-    approach_x, approach_y, looping = final_approach(
-        ops,
-        config.position_gain,
-        waited,
-        ops.where(waiting_next, stage.leaving, stage.leaving_before),
-        to_waited,
-        tcp,
-        ops.where(waiting_next, stage.loop_radius, stage.loop_radius_before),
-    )
-    vx = vx + pull * (approach_x - vx)
-    vy = vy + pull * (approach_y - vy)
+    omega = blended.omega
+    if ops.any(pull > 0.0):
+        approach_x, approach_y, looping = final_approach(
+            ops,
+            config.position_gain,
+            waited,
+            ops.where(waiting_next, stage.leaving, stage.leaving_before),
+            to_waited,
+            tcp,
+            ops.where(waiting_next, stage.loop_radius, stage.loop_radius_before),
+        )
+        vx = vx + pull * (approach_x - vx)
+        vy = vy + pull * (approach_y - vy)
+        # On a loop the heading turns with the TCP's way round, so that it points along the
+        # plan, not back at the waiting reference, when the arm comes onto the waypoint.
+        omega = ops.branch(
+            looping > 0.0,
+            _turn_with_loop,
+            omega,
+            ops,
+            config.heading_gain,
+            omega,
+            heading,
+            pull * looping,
+            approach_x,
+            approach_y,
+        )
     vx, vy = reach_limited(ops, config.reach_rate, law.full_reach, vx, vy, tcp)
     lead = height_lead(ops, waiting_next, to_next, reference_to_next)
     vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
@@ -471,20 +487,6 @@ def step(
     limited = limited | (command[0] != wanted[0]) | (command[1] != wanted[1])
     limited = limited | (command[2] != wanted[2])
 
-    # On a loop the heading turns with the TCP's way round, so that it points along the
-    # plan, not back at the waiting reference, when the arm comes onto the waypoint.
-    omega = ops.branch(
-        looping > 0.0,
-        _turn_with_loop,
-        blended.omega,
-        ops,
-        config.heading_gain,
-        blended.omega,
-        heading,
-        pull * looping,
-        approach_x,
-        approach_y,
-    )
     heading = wrap_angle(heading + omega * config.period)
     output = ControlOutput(
         command,
@@ -577,12 +579,13 @@ def _goal(
         1.0 - smoothstep(ops, (behind - low) / (high - low))
     )
     slide_x, slide_y = stage.goal_slide
-    back = (slide_x * (tcp[0] - stage.point[0]) + slide_y * (tcp[1] - stage.point[1])) / ops.max(
-        length(ops, slide_x, slide_y) * to_next, 1e-9
-    )
-    low, high = GOAL_BACK
-    turned_back = ops.where(behind > -math.inf, smoothstep(ops, (back - low) / (high - low)), 0.0)
-    share = share * (1.0 - turned_back)
+    if ops.any(share > 0.0):
+        back = (slide_x * (tcp[0] - stage.point[0]) + slide_y * (tcp[1] - stage.point[1])) / (
+            ops.max(length(ops, slide_x, slide_y) * to_next, 1e-9)
+        )
+        low, high = GOAL_BACK
+        turned_back = smoothstep(ops, (back - low) / (high - low))
+        share = share * (1.0 - ops.where(behind > -math.inf, turned_back, 0.0))
     goal_x, goal_y = stage.point[0], stage.point[1]
     return (
         ops.where(stage.inner, goal_x + share * slide_x, goal_x),
