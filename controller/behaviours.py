@@ -3,6 +3,8 @@ obstacle, made of TL and TR), each giving a unicycle command (v, omega) for the 
 
 The TCP is steered in the XY plane like a unicycle with a virtual heading phi
 (x' = v cos phi, y' = v sin phi, phi' = omega), as the paper's (v, omega) commands imply.
+Where PT's way lies behind the heading, an arm that is all but still goes that way
+backwards, the heading turned half round (:func:`backward_tracking`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,11 @@ PLANNED_REST_SPEED = 0.005
 along and across it, whose direction is not defined at a standstill."""
 AHEAD_SPEED_FRACTION = 0.25
 """A TCP ahead of the moving plan slows down to this fraction of the planned speed."""
+BACKWARD_SPEED = 0.001
+"""m/s: PT goes a way behind its heading backwards (:func:`backward_tracking`) only where it
+wants at least this: below, the way is that of an arm all but on its reference (at a run's
+start, micrometres off it), and turning the heading round for it turned AO, blended in a
+few ticks later, the wrong way (fuzzy peak jerk 32 to 115 m/s^3, ``gen-0-962``)."""
 AIM_SPARE = 0.0015
 """m: the way AO steers round passes this near a waypoint nearer the inflated obstacle than
 AO's pass margin and this (:func:`aim_margin`): within the 1.9 mm that pass it ..."""
@@ -40,6 +47,18 @@ class Command(NamedTuple):
 
 
 STOP = Command(0.0, 0.0)
+
+
+class Tracking(NamedTuple):
+    """PT's command, with what driving the same way backwards takes
+    (:func:`backward_tracking`): the speed PT wants, the heading's error to the way it wants
+    it, and the turn rate fed forward."""
+
+    v: Real
+    omega: Real
+    speed: Real
+    error: Real
+    feedforward: Real
 
 
 def aim_margin(pass_margin: float, room: float) -> float:
@@ -59,7 +78,7 @@ def plan_tracking(
     reference: tuple[Real, Real],
     reference_velocity: tuple[Real, Real],
     reference_acceleration: tuple[Real, Real],
-) -> Command:
+) -> Tracking:
     """PT: follow the planned point; eq. 26's (v_T, omega_T).
 
     The wanted velocity is the plan's plus ``position_gain`` times the position error, split
@@ -95,12 +114,24 @@ def plan_tracking(
         wanted_x = vx + config.position_gain * error_x
         wanted_y = vy + config.position_gain * error_y
         wanted = length(ops, wanted_x, wanted_y)
-        error = wrap_angle(ops.atan2(wanted_y, wanted_x) - heading)
-        speed = ops.min(wanted, config.speed_max)
         still = wanted < 1e-9
-        v = ops.where(at_rest, ops.where(still, 0.0, speed * ops.max(ops.cos(error), 0.0)), v)
+        error = ops.where(at_rest, wrap_angle(ops.atan2(wanted_y, wanted_x) - heading), error)
+        speed = ops.where(at_rest, ops.where(still, 0.0, ops.min(wanted, config.speed_max)), speed)
+        feedforward = ops.where(at_rest, 0.0, feedforward)
+        v = ops.where(at_rest, speed * ops.max(ops.cos(error), 0.0), v)
         omega = ops.where(at_rest, ops.where(still, 0.0, config.heading_gain * error), omega)
-    return Command(v, omega)
+    return Tracking(v, omega, speed, error, feedforward)
+
+
+def backward_tracking(ops: Ops, config: ControllerConfig, tracking: Tracking) -> Command:
+    """PT's wanted velocity driven with the heading turned half round, for a way that lies
+    more than 90 degrees off the heading: the unicycle goes there backwards instead of
+    standing while it turns (the TCP itself can move either way)."""
+    error = tracking.error
+    turned = error - ops.where(error > 0.0, math.pi, -math.pi)
+    return Command(
+        -tracking.speed * ops.cos(error), tracking.feedforward + config.heading_gain * turned
+    )
 
 
 def avoid_obstacle(

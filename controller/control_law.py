@@ -21,10 +21,13 @@ import math
 from typing import NamedTuple, Protocol
 
 from controller.behaviours import (
+    BACKWARD_SPEED,
     PLANNED_REST_SPEED,
     Command,
+    Tracking,
     aim_margin,
     avoid_obstacle,
+    backward_tracking,
     plan_tracking,
 )
 from controller.coordination import Coordination, smoothstep, weights
@@ -33,7 +36,7 @@ from controller.planner import Trajectory, cubic, plan_of
 from controller.safety import Limits, barrier, box, filtered, limits_of
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.geometry import EllipticCylinder, Section, distance, length, wrap_angle
-from protocol.kinematics import arm_trig, joint_rates, reach_radii, tool_position
+from protocol.kinematics import arm_trig, joint_rates, reach_radii, tcp_velocity, tool_position
 from protocol.ops import SCALAR, Mask, Ops, Real
 from protocol.scenario import Mode, Scenario
 
@@ -211,7 +214,7 @@ class ControlOutput(NamedTuple):
     reference: Point3
     reference_speed: Real
     measurement: ObstacleMeasurement
-    tracking: Command
+    tracking: Tracking
     avoiding: Command
     k_t: Real
     k_c: Real
@@ -440,6 +443,21 @@ def step(
         (k_t * tracking.v + k_c * avoiding.v) / total,
         (k_t * tracking.omega + k_c * avoiding.omega) / total,
     )
+    # PT alone, its way behind the heading (v 0): an arm all but still goes that way
+    # backwards, the heading turned half round, instead of turning on the spot while the plan
+    # moves on (where the plan turns back at a waypoint, or the hard switch hands an arm back).
+    backward = (k_c == 0.0) & (tracking.v == 0.0) & (tracking.speed > BACKWARD_SPEED)
+    if ops.any(backward):
+        last = tcp_velocity(law.robot, theta1, theta2, state.previous[0], state.previous[1], ops)
+        backward = backward & (length(ops, last[0], last[1]) < PLANNED_REST_SPEED)
+        reversed_command = backward_tracking(ops, config, tracking)
+        blended = Command(
+            ops.where(backward, reversed_command.v, blended.v),
+            ops.where(backward, reversed_command.omega, blended.omega),
+        )
+        heading = ops.where(backward, wrap_angle(heading + math.pi), heading)
+        heading_cos = ops.where(backward, -heading_cos, heading_cos)
+        heading_sin = ops.where(backward, -heading_sin, heading_sin)
 
     vx, vy = approach_limited(
         ops, config, blended.v * heading_cos, blended.v * heading_sin, measurement

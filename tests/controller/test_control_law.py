@@ -14,6 +14,7 @@ from controller.behaviours import (
     TURN_LEFT,
     TURN_RIGHT,
     avoid_obstacle,
+    backward_tracking,
     plan_tracking,
 )
 from controller.control_law import (
@@ -33,9 +34,10 @@ from controller.fuzzy import RuleBase
 from controller.obstacle import ObstacleMeasurement, measure
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.errors import ConfigError
-from protocol.geometry import EllipticCylinder
+from protocol.geometry import EllipticCylinder, wrap_angle
 from protocol.ops import SCALAR
-from protocol.scenario import Mode, load_scenario
+from protocol.scenario import Mode, Scenario, Waypoint, load_scenario
+from sim.generator import generate_scenario_at
 from sim.measures import WAYPOINT_TOLERANCE
 from sim.simulation import simulate
 
@@ -70,6 +72,56 @@ def test_tracking_a_plan_coming_to_a_rest_keeps_its_speed_either_side_of_the_res
         SCALAR, CONFIG, math.pi / 2, (0.3, -0.001), (0.3, 0.0), (0.0, planned), (0.0, 0.0)
     )
     assert behind.v == pytest.approx(planned + CONFIG.position_gain * 0.001)
+
+
+@pytest.mark.parametrize("planned", [0.0, 0.003, 0.2])
+def test_tracking_a_way_behind_the_heading_goes_there_backwards(planned: float) -> None:
+    """PT wants to go the other way (at a rest where the plan turns back, or the arm ahead
+    of a plan at rest): forwards it turns on the spot, v 0; backwards, with the heading turned
+    half round, it goes that way at once, at the speed PT wants."""
+    behind = (0.3 + 0.001, 0.0)  # the reference lies 1 mm behind an arm heading along +x
+    tracking = plan_tracking(SCALAR, CONFIG, 0.0, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0))
+    assert tracking.v == 0.0
+    assert tracking.speed == pytest.approx(planned + CONFIG.position_gain * 0.001)
+    backward = backward_tracking(SCALAR, CONFIG, tracking)
+    assert backward.v == pytest.approx(tracking.speed)  # along the heading turned to -x
+    assert backward.omega == pytest.approx(0.0, abs=1e-9)
+    aside = plan_tracking(SCALAR, CONFIG, 0.5, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0))
+    # heading 0.5 rad: its back, at 0.5 + pi, turns by -0.5 rad onto the way (-x)
+    assert backward_tracking(SCALAR, CONFIG, aside).omega == pytest.approx(
+        -CONFIG.heading_gain * 0.5
+    )
+
+
+def test_an_arm_still_at_a_rest_where_the_plan_turns_back_moves_off_with_it() -> None:
+    """The plan comes to a rest at p_1 and turns straight back: the arm, heading the way it
+    came, moved off backwards on the first tick the plan moved, not after a turn on the spot."""
+    task = Scenario(
+        name="there-and-back",
+        waypoints=(
+            Waypoint(0.0, 0.3, 0.0, 0.25),
+            Waypoint(1.0, 0.4, 0.0, 0.25),
+            Waypoint(2.0, 0.3, 0.0, 0.25),
+        ),
+        obstacle=None,
+    )
+    run = simulate(task, Mode.CONVENTIONAL)
+    log = run.log
+    leaving = np.flatnonzero((log["progress"] > 1.0) & (log["reference_speed"] > 0.001))[0]
+    later = leaving + 5
+    assert log["x"][later] < log["x"][leaving]  # already on its way back
+    assert run.measures.stops == 0
+
+
+def test_at_a_runs_start_the_heading_is_not_turned_round_for_micrometres() -> None:
+    """At the first waypoint PT's way is set by an arm micrometres off its reference: turned
+    round for it (below BACKWARD_SPEED), the heading swung half a turn and back, and AO,
+    blended in a few ticks later, went the wrong way (fuzzy peak jerk 32 to 115 m/s^3)."""
+    task = generate_scenario_at(0, 962)
+    first, second = task.waypoints[0], task.waypoints[1]
+    along = math.atan2(second.y - first.y, second.x - first.x)
+    log = simulate(task, Mode.FUZZY).log
+    assert max(abs(wrap_angle(heading - along)) for heading in log["heading"][:100]) < 0.2
 
 
 def test_tracking_beside_the_plan_steers_back() -> None:

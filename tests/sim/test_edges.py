@@ -66,6 +66,20 @@ def test_an_arm_carried_past_a_waypoint_beside_the_obstacle_comes_back_onto_it_w
     assert measures.max_waypoint_miss <= 0.002
 
 
+@pytest.mark.parametrize("index", [81, 763, 814, 852])
+def test_an_arm_all_but_still_goes_a_way_behind_its_heading_backwards_without_a_stop(
+    index: int,
+) -> None:
+    """The hard switch's runs: the plan turned back at a rest the arm came to late, or the
+    switch handed a slow arm back to PT heading away from the plan; the unicycle turned on the
+    spot (v 0) while the plan moved on, a stop (margins 0.14-0.72). It now goes backwards."""
+    task = generate_scenario_at(0, index, family=Family.EDGE_OBSTACLE)
+    check_task(task)
+    measures = simulate_batch([task], Mode.CONVENTIONAL)[0].measures
+    assert measures.outcome == "done"
+    assert measures.stops == 0 and measures.stop_margin > 1.0, measures.stop_margin
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.EDGE_LIMIT, 824), (Family.EDGE_SPEED, 806)])
 def test_where_the_plan_turns_back_the_fuzzy_k_c_does_not_jump_as_dm_looks_on(
     family: Family, index: int
