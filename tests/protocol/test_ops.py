@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from support import NOT_LIBM_TOLERANCE, NUMPY_IS_LIBM
 
-from controller.behaviours import plan_tracking
+from controller.behaviours import Tracking, backward_tracking, plan_tracking
 from controller.fuzzy import FuzzyInference, RuleBase, infer
 from controller.obstacle import NO_OBSTACLE, measure, sense
 from plant_sim.model import integrate
@@ -237,7 +237,7 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
     velocity[:, :300] *= 0.01  # the plan at rest
     reference[:, :5] = position[:, :5]  # on it
     acceleration = rng.uniform(-1.0, 1.0, (2, count))
-    v, omega = plan_tracking(
+    tracking = plan_tracking(
         ARRAY,
         config,
         heading,
@@ -256,7 +256,11 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
             tuple(velocity[:, index].tolist()),
             tuple(acceleration[:, index].tolist()),
         )
-        assert_same((v[index].item(), omega[index].item()), tuple(one), index)
+        assert_same(_at(tuple(tracking), index), tuple(one), index)
+    backward = backward_tracking(ARRAY, config, tracking)
+    for index in range(count):
+        one = backward_tracking(SCALAR, config, Tracking(*_at(tracking, index)))
+        assert_same(_at(tuple(backward), index), tuple(one), index)
 
     robot = RobotConfig()
     joint = rng.uniform(robot.joint_min[0], robot.joint_max[0], count)
