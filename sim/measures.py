@@ -25,8 +25,9 @@ STOP_MIN_TICKS = 3
 STOP_EDGE_MARGIN = 0.2
 """... while the plan itself is moving, not within this many seconds of start or end ..."""
 STOP_REST_MARGIN = 0.1
-"""... nor within this many seconds of plan of a planned rest (a waypoint the plan stops at:
-the arm lags the plan, and slowing down to a planned stop is not a stop)."""
+"""... nor within this many seconds of plan of a planned rest (a waypoint the plan stops at,
+or a place between two where its planar speed dips below the stop speed: the arm lags the
+plan, and slowing down to a planned stop is not a stop)."""
 PLAN_SAMPLES = 2001
 """Points of the plan sampled for its length."""
 Array = npt.NDArray[np.float64]
@@ -111,6 +112,37 @@ def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
     return threshold, np.array(rests)
 
 
+def slow_passes(scenario: Scenario, threshold: float) -> list[float]:
+    """The times between waypoints where the plan's planar speed has a minimum below
+    ``threshold``: where a coordinate turns back within a segment (the cubic overshoots its
+    waypoint), the plan all but stops there. Exact: d|v|^2/dtau = 2 v.a is a cubic in each
+    segment's local time."""
+    planned = plan_of(scenario)
+    found = []
+    for index in range(len(planned.times) - 1):
+        segments = [planned.segment(index, axis) for axis in (0, 1)]
+        # (k1 + 2 k2 tau + 3 k3 tau^2)(2 k2 + 6 k3 tau), highest power first, summed over x, y
+        slope = np.sum(
+            [
+                (18 * k3 * k3, 18 * k2 * k3, 6 * k1 * k3 + 4 * k2 * k2, 2 * k1 * k2)
+                for _, k1, k2, k3 in (segment.coefficients for segment in segments)
+            ],
+            axis=0,
+        )
+        if not slope.any():
+            continue
+        duration = segments[0].duration
+        for root in np.roots(slope):
+            tau = float(root.real)
+            if abs(root.imag) > 1e-12 or not 1e-9 < tau / duration < 1.0 - 1e-9:
+                continue  # complex, or outside: the waypoints' own rests are found apart
+            start = segments[0].t_start
+            speed = math.hypot(*(segment.velocity(start + tau) for segment in segments))
+            if speed < threshold:
+                found.append(start + tau)
+    return found
+
+
 class MeasureStream:
     """The measures of many runs, from their logs fed in blocks of ticks (columns named as in
     the run log, shaped (ticks, runs)): the batch simulator's thousands of runs, or one log.
@@ -159,10 +191,13 @@ class MeasureStream:
         self._end = np.array([s.waypoints[-1].t for s in scenarios])
         self._before_last = np.array([s.waypoints[-2].t for s in scenarios])
         self._threshold = np.zeros(count)
-        self._rests = np.full((count, max(self._counts)), math.nan)
+        every_rest: list[list[float]] = []
         for row, scenario in enumerate(scenarios):
-            threshold, rests = stop_threshold_and_rests(scenario)
+            threshold, at_waypoints = stop_threshold_and_rests(scenario)
             self._threshold[row] = threshold
+            every_rest.append([*at_waypoints, *slow_passes(scenario, threshold)])
+        self._rests = np.full((count, max(map(len, every_rest))), math.nan)
+        for row, rests in enumerate(every_rest):
             self._rests[row, : len(rests)] = rests
         self._rows = np.arange(count)
         self._min_clearance = np.full(count, math.inf)

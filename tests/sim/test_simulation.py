@@ -9,16 +9,21 @@ import numpy as np
 import pytest
 from support import LATE_DETOUR, UNSAFE_WITHIN
 
+from controller.planner import plan_of
 from controller.run_end import SETTLED_SPEEDS, RunOutcome
 from controller.runlog import COLUMN, RunLog
 from protocol.kinematics import tcp_velocity
 from protocol.scenario import Mode, load_scenario
 from sim.cli import main as sim_main
+from sim.generator import Family, generate_scenario_at
 from sim.measures import (
+    PLAN_SAMPLES,
     STOP_MIN_TICKS,
+    STOP_REST_MARGIN,
     WAYPOINT_TOLERANCE,
     MeasureStream,
     compute_measures,
+    slow_passes,
     stop_threshold_and_rests,
 )
 from sim.simulation import SimulationRun, simulate
@@ -170,6 +175,37 @@ def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
     # Slowed to about 1.5 times the stop speed for ten ticks: near a stop, not one.
     stops, margin = measured(10, 1.5 * threshold / speed.min())
     assert stops == 0 and 1.0 < margin < 1.6
+
+
+def test_a_plan_that_all_but_stops_between_two_waypoints_rests_there() -> None:
+    # The last segment's cubic overshoots its waypoint: y turns back, and the plan's planar
+    # speed dips to 1.6 mm/s, below the stop speed, 1.3 s before the waypoint. The hard
+    # switch's arm, lagging, reverses 0.08 s after: slowing down to a planned stop.
+    scenario = generate_scenario_at(0, 388, family=Family.EDGE_OBSTACLE)
+    threshold, rests = stop_threshold_and_rests(scenario)
+    (dip,) = slow_passes(scenario, threshold)
+    assert not np.any(np.abs(rests - dip) < 1.0)  # no waypoint near it
+    times = np.linspace(scenario.waypoints[-2].t, dip + 0.5, PLAN_SAMPLES)
+    speeds = np.hypot(*plan_of(scenario).sample(times)[1][:, :2].T)
+    assert dip == pytest.approx(times[np.argmin(speeds)], abs=2e-3)
+    assert slow_passes(scenario, speeds.min() * 0.999) == []  # just faster: no rest
+
+    run = simulate(scenario, Mode.CONVENTIONAL)
+    assert run.measures.stops == 0
+    progress = run.log["progress"]
+
+    def stops_frozen_at(plan_time: float) -> int:
+        """Stops with the arm frozen for STOP_MIN_TICKS ticks from that time of plan."""
+        first = int(np.searchsorted(progress, plan_time))
+        tampered = RunLog.from_array(run.log.data.copy())
+        for name in ("theta1_rate", "theta2_rate", "d3_rate"):
+            tampered[name][first : first + STOP_MIN_TICKS] = 0.0
+        return compute_measures(scenario, tampered, run.measures.outcome).stops
+
+    tick = scenario.controller.period
+    assert stops_frozen_at(dip + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
+    assert stops_frozen_at(dip + STOP_REST_MARGIN + tick) == 1
+    assert stops_frozen_at(dip - STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 1
 
 
 def test_command_line_writes_table_figure_and_json(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
