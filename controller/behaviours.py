@@ -78,6 +78,7 @@ def plan_tracking(
     reference: tuple[Real, Real],
     reference_velocity: tuple[Real, Real],
     reference_acceleration: tuple[Real, Real],
+    rest_ahead: tuple[Real, Real, Mask],
 ) -> Tracking:
     """PT: follow the planned point; eq. 26's (v_T, omega_T).
 
@@ -86,7 +87,11 @@ def plan_tracking(
     moves at its size (so an arm beside a plan that slows down or waits still closes the
     gap). Along, it is never below AHEAD_SPEED_FRACTION of the planned speed: a TCP ahead of
     the plan (AO may drive it faster than planned) lets the plan catch up at a crawl rather
-    than turning round, or standing still while the plan moves. The plan's own turn rate is
+    than turning round, or standing still while the plan moves. But where the plan comes to
+    rest at the waypoint ahead (``rest_ahead``: its place, and whether the plan rests there)
+    the crawl ends there: it slows to ``position_gain`` times the TCP's way to it, along the
+    plan, and waits there for the plan (crawling on, it went past the waypoint, away from
+    where the plan stops, and had to come back). The plan's own turn rate is
     fed forward. Where the plan (nearly) stands still the wanted velocity is the same sum,
     steered to as a whole: aiming at the planned point alone dropped the plan's last few mm/s
     as it came to a rest or left one, and an arm on its reference slowed to a stop there.
@@ -99,9 +104,11 @@ def plan_tracking(
     along_x, along_y = vx / divisor, vy / divisor
     lag = error_x * along_x + error_y * along_y
     offset = along_x * error_y - along_y * error_x
-    along = ops.max(
-        planned_speed + config.position_gain * lag, AHEAD_SPEED_FRACTION * planned_speed
-    )
+    crawl = AHEAD_SPEED_FRACTION * planned_speed
+    rest_x, rest_y, resting = rest_ahead
+    to_rest = (rest_x - position[0]) * along_x + (rest_y - position[1]) * along_y
+    crawl = ops.where(resting, ops.min(crawl, config.position_gain * to_rest), crawl)
+    along = ops.max(planned_speed + config.position_gain * lag, crawl)
     across = config.position_gain * offset
     speed = ops.min(length(ops, along, across), config.speed_max)
     target = ops.atan2(vy, vx) + ops.atan2(across, along)

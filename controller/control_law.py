@@ -406,6 +406,7 @@ def step(
         (reference[0], reference[1]),
         (reference_velocity[0], reference_velocity[1]),
         (squared * acceleration[0], squared * acceleration[1]),
+        (stage.point[0], stage.point[1], (stage.leaving[0] == 0.0) & (stage.leaving[1] == 0.0)),
     )
     avoiding, side = avoid_obstacle(
         ops,

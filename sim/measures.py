@@ -196,6 +196,16 @@ class MeasureStream:
             threshold, at_waypoints = stop_threshold_and_rests(scenario)
             self._threshold[row] = threshold
             every_rest.append([*at_waypoints, *slow_passes(scenario, threshold)])
+        # Where the plan comes to rest at a waypoint, that waypoint from the time of the one
+        # before it (an arm early there waits for the plan); NaN elsewhere.
+        self._rest_times = np.full((count, max(self._counts)), math.inf)
+        self._rest_places = np.full((count, max(self._counts), 2), math.nan)
+        for row, scenario in enumerate(scenarios):
+            times = [w.t for w in scenario.waypoints]
+            self._rest_times[row, : len(times)] = times
+            for index, waypoint in enumerate(scenario.waypoints):
+                if index and waypoint.t in every_rest[row]:
+                    self._rest_places[row, index] = (waypoint.x, waypoint.y)
         self._rests = np.full((count, max(map(len, every_rest))), math.nan)
         for row, rests in enumerate(every_rest):
             self._rests[row, : len(rests)] = rests
@@ -248,6 +258,7 @@ class MeasureStream:
             & (progress >= self._start + STOP_EDGE_MARGIN)
             & (progress <= self._end - STOP_EDGE_MARGIN)
             & ~near_any(progress, self._rests, STOP_REST_MARGIN)
+            & ~self._waiting_at_rest(progress, position)
             & valid
         )
         self._fold_stops(watched & (speed < self._threshold))
@@ -275,6 +286,16 @@ class MeasureStream:
             step = _length(np.diff(position, axis=0))
             self._length += _running_sum(np.where(counted, step, 0.0))
         self._tail_command, self._tail_position = command[-1:], position[-1:]
+
+    def _waiting_at_rest(self, progress: Array, position: Array) -> Mask:
+        """Ticks where the TCP is within WAYPOINT_TOLERANCE in the plane of the waypoint the
+        plan is on its way to, and the plan comes to rest there: the arm is early, and waits
+        where the plan will stop."""
+        ahead = (self._rest_times[None, :, :] <= progress[:, :, None]).sum(axis=-1)
+        ahead = np.minimum(ahead, self._rest_times.shape[1] - 1)
+        place = self._rest_places[self._rows[None, :], ahead]  # (ticks, runs, 2)
+        gap = np.hypot(position[:, 0] - place[..., 0], position[:, 1] - place[..., 1])
+        return np.asarray(gap <= WAYPOINT_TOLERANCE)
 
     def _fold_jerk(self, velocity: Array, clock: Array, valid: Mask) -> None:
         """Jerk: the second derivative of the TCP velocity by a Savitzky-Golay filter (cubic,
@@ -338,6 +359,8 @@ class MeasureStream:
         "_before_last",
         "_threshold",
         "_rests",
+        "_rest_times",
+        "_rest_places",
         "_min_clearance",
         "_misses",
         "_peak",

@@ -42,18 +42,62 @@ from sim.measures import WAYPOINT_TOLERANCE
 from sim.simulation import simulate
 
 CONFIG = ControllerConfig()
+NO_REST = (0.0, 0.0, False)
+"""PT's ``rest_ahead`` where the plan does not rest at the waypoint ahead."""
 
 
 def test_tracking_on_the_plan_follows_it() -> None:
-    command = plan_tracking(SCALAR, CONFIG, 0.0, (0.3, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    command = plan_tracking(
+        SCALAR, CONFIG, 0.0, (0.3, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST
+    )
     assert command.v == pytest.approx(0.2)
     assert command.omega == pytest.approx(0.0)
 
 
 def test_tracking_ahead_of_the_plan_slows_down_instead_of_turning_round() -> None:
-    command = plan_tracking(SCALAR, CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0))
+    command = plan_tracking(
+        SCALAR, CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST
+    )
     assert command.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)  # crawls on, never stops
     assert command.omega == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize(
+    ("short_of_rest", "along"),
+    [
+        (0.010, AHEAD_SPEED_FRACTION * 0.2),  # far from it: the crawl
+        (0.001, CONFIG.position_gain * 0.001),  # just short: slowing into it
+        (0.0, 0.0),  # on it: waits for the plan
+    ],
+)
+def test_tracking_ahead_of_the_plan_crawls_no_further_than_where_the_plan_comes_to_rest(
+    short_of_rest: float, along: float
+) -> None:
+    """The plan (at 0.3, 0.2 m/s along +x) comes to rest at the waypoint ahead: an arm 5 cm
+    ahead of it crawls into the waypoint and waits there. Where the plan passes the waypoint
+    without a rest, the crawl goes on."""
+    arm = (0.35, 0.0)
+    rest = (arm[0] + short_of_rest, 0.0)
+    command = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), (*rest, True)
+    )
+    assert command.v == pytest.approx(along)
+    passing = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), (*rest, False)
+    )
+    assert passing.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)
+    # 1 mm past it, its way points back at it (v 0 forwards: PT turns the arm, or backs it)
+    past = plan_tracking(
+        SCALAR,
+        CONFIG,
+        0.0,
+        (rest[0] + 0.001, 0.0),
+        (0.3, 0.0),
+        (0.2, 0.0),
+        (0.0, 0.0),
+        (*rest, True),
+    )
+    assert past.v == 0.0 and past.speed == pytest.approx(CONFIG.position_gain * 0.001)
 
 
 @pytest.mark.parametrize("planned", [0.004, 0.006])
@@ -64,12 +108,12 @@ def test_tracking_a_plan_coming_to_a_rest_keeps_its_speed_either_side_of_the_res
     aimed at the reference alone below it, and stood still while the plan moved on)."""
     assert 0.004 < PLANNED_REST_SPEED < 0.006  # the two cases sit either side of it
     on_plan = plan_tracking(
-        SCALAR, CONFIG, math.pi / 2, (0.3, 0.0), (0.3, 0.0), (0.0, planned), (0.0, 0.0)
+        SCALAR, CONFIG, math.pi / 2, (0.3, 0.0), (0.3, 0.0), (0.0, planned), (0.0, 0.0), NO_REST
     )
     assert on_plan.v == pytest.approx(planned)
     assert on_plan.omega == pytest.approx(0.0)
     behind = plan_tracking(
-        SCALAR, CONFIG, math.pi / 2, (0.3, -0.001), (0.3, 0.0), (0.0, planned), (0.0, 0.0)
+        SCALAR, CONFIG, math.pi / 2, (0.3, -0.001), (0.3, 0.0), (0.0, planned), (0.0, 0.0), NO_REST
     )
     assert behind.v == pytest.approx(planned + CONFIG.position_gain * 0.001)
 
@@ -80,13 +124,17 @@ def test_tracking_a_way_behind_the_heading_goes_there_backwards(planned: float) 
     of a plan at rest): forwards it turns on the spot, v 0; backwards, with the heading turned
     half round, it goes that way at once, at the speed PT wants."""
     behind = (0.3 + 0.001, 0.0)  # the reference lies 1 mm behind an arm heading along +x
-    tracking = plan_tracking(SCALAR, CONFIG, 0.0, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0))
+    tracking = plan_tracking(
+        SCALAR, CONFIG, 0.0, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0), NO_REST
+    )
     assert tracking.v == 0.0
     assert tracking.speed == pytest.approx(planned + CONFIG.position_gain * 0.001)
     backward = backward_tracking(SCALAR, CONFIG, tracking)
     assert backward.v == pytest.approx(tracking.speed)  # along the heading turned to -x
     assert backward.omega == pytest.approx(0.0, abs=1e-9)
-    aside = plan_tracking(SCALAR, CONFIG, 0.5, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0))
+    aside = plan_tracking(
+        SCALAR, CONFIG, 0.5, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0), NO_REST
+    )
     # heading 0.5 rad: its back, at 0.5 + pi, turns by -0.5 rad onto the way (-x)
     assert backward_tracking(SCALAR, CONFIG, aside).omega == pytest.approx(
         -CONFIG.heading_gain * 0.5
@@ -126,7 +174,7 @@ def test_at_a_runs_start_the_heading_is_not_turned_round_for_micrometres() -> No
 
 def test_tracking_beside_the_plan_steers_back() -> None:
     left_of_plan = plan_tracking(
-        SCALAR, CONFIG, 0.0, (0.3, 0.02), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0)
+        SCALAR, CONFIG, 0.0, (0.3, 0.02), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST
     )
     assert left_of_plan.omega < 0.0  # turn right, back onto the path
     assert 0.0 < left_of_plan.v <= CONFIG.speed_max

@@ -237,6 +237,8 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
     velocity[:, :300] *= 0.01  # the plan at rest
     reference[:, :5] = position[:, :5]  # on it
     acceleration = rng.uniform(-1.0, 1.0, (2, count))
+    rest = position + rng.uniform(-0.01, 0.01, (2, count))  # ahead of some, behind others
+    resting = rng.uniform(size=count) < 0.5
     tracking = plan_tracking(
         ARRAY,
         config,
@@ -245,6 +247,7 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
         tuple(reference),
         tuple(velocity),
         tuple(acceleration),
+        (rest[0], rest[1], resting),
     )
     for index in range(count):
         one = plan_tracking(
@@ -255,6 +258,7 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
             tuple(reference[:, index].tolist()),
             tuple(velocity[:, index].tolist()),
             tuple(acceleration[:, index].tolist()),
+            (float(rest[0, index]), float(rest[1, index]), bool(resting[index])),
         )
         assert_same(_at(tuple(tracking), index), tuple(one), index)
     backward = backward_tracking(ARRAY, config, tracking)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from itertools import pairwise
 
+import numpy as np
 import pytest
 
 from controller.task_rules import check_task, rule_of
@@ -13,6 +14,7 @@ from protocol.errors import ConfigError
 from protocol.scenario import Mode
 from sim.batch import simulate_batch
 from sim.generator import Family, generate_scenario_at
+from sim.measures import WAYPOINT_TOLERANCE
 from sim.simulation import simulate
 from sim.study.refusals import Check, brute_force
 
@@ -78,6 +80,24 @@ def test_an_arm_all_but_still_goes_a_way_behind_its_heading_backwards_without_a_
     measures = simulate_batch([task], Mode.CONVENTIONAL)[0].measures
     assert measures.outcome == "done"
     assert measures.stops == 0 and measures.stop_margin > 1.0, measures.stop_margin
+
+
+def test_an_arm_early_at_a_waypoint_where_the_plan_rests_waits_there_for_it() -> None:
+    """The hard switch let go of the arm 6 mm short of a waypoint the plan comes to rest at,
+    1 s before the plan got there: PT crawled on along the plan, 6 mm past the waypoint,
+    slowing with the plan, and stopped short of the 0.1 s round the rest. It now waits at the
+    waypoint, within the 2 mm it is passed by, until the plan has come."""
+    task = generate_scenario_at(0, 281, family=Family.EDGE_OBSTACLE)
+    check_task(task)
+    run = simulate(task, Mode.CONVENTIONAL)
+    assert run.measures.outcome == "done" and run.measures.stops == 0
+    rest = task.waypoints[2]
+    log = run.log
+    gap = np.hypot(log["x"] - rest.x, log["y"] - rest.y)
+    arrived = int(np.argmax(gap <= WAYPOINT_TOLERANCE))
+    plan_there = int(np.argmax(log["progress"] >= rest.t))
+    assert log["progress"][arrived] < rest.t - 0.5  # early, by more than half a second
+    assert gap[arrived:plan_there].max() <= WAYPOINT_TOLERANCE
 
 
 @pytest.mark.parametrize(("family", "index"), [(Family.EDGE_LIMIT, 824), (Family.EDGE_SPEED, 806)])

@@ -208,6 +208,25 @@ def test_a_plan_that_all_but_stops_between_two_waypoints_rests_there() -> None:
     assert stops_frozen_at(dip - STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 1
 
 
+@pytest.mark.parametrize(("gap", "stops"), [(0.9999, 0), (1.0001, 1)])
+def test_an_arm_waiting_at_the_rest_ahead_is_not_stopped_within_the_tolerance(
+    gap: float, stops: int
+) -> None:
+    # The hard switch's arm comes to a waypoint where the plan rests 0.6 s before the plan
+    # does, and waits there: no stop. Moved off it in the log, just outside the 2 mm it is
+    # a stop; just inside, none.
+    scenario = generate_scenario_at(0, 281, family=Family.EDGE_OBSTACLE)
+    run = simulate(scenario, Mode.CONVENTIONAL)
+    rest = scenario.waypoints[2]
+    log = RunLog.from_array(run.log.data.copy())
+    near = np.hypot(log["x"] - rest.x, log["y"] - rest.y) <= WAYPOINT_TOLERANCE
+    waiting = near & (log["progress"] < rest.t - STOP_REST_MARGIN)
+    assert waiting.sum() > 200  # ticks, 0.4 s and more
+    log["x"][waiting] = rest.x + gap * WAYPOINT_TOLERANCE
+    log["y"][waiting] = rest.y
+    assert compute_measures(scenario, log, run.measures.outcome).stops == stops
+
+
 def test_command_line_writes_table_figure_and_json(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
     assert sim_main(["reference", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
