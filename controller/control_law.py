@@ -61,6 +61,11 @@ RATE_CHANGE = 0.1
 """s: the plan's rate goes from 1 to 0 or back in no less than this, so the reference never
 brakes or starts harder than the arm can follow (an arm overshooting a waiting reference
 would have to turn back: a stop)."""
+RATE_RAMP = 0.05
+"""s: rising, the rate's slope goes from none to its most (1 per RATE_CHANGE) in no less than
+this, so that the reference's acceleration ramps where the plan moves off after a wait:
+stepping the slope stepped it by up to 1/RATE_CHANGE times the plan's speed (6 m/s^2 at 0.6
+m/s), and the arm's jerk peaked as it moved off."""
 CLEAR_WAY = 0.01
 """m: AO gives way once the obstacle is this much farther from the TCP than the waypoint it
 heads for (:func:`_at_waypoint`): AO would only take the arm round an obstacle beyond it. At
@@ -201,6 +206,8 @@ class LawState(NamedTuple):
     """The plan's time the reference stands at: advances by ``rate`` times t's."""
     rate: Real
     """How fast the plan's time runs against t, 0..1 (:func:`_wanted_rate`)."""
+    rate_slope: Real
+    """How fast ``rate`` changes, per second of t."""
     last_t: Real
     reached: Real
     """The last waypoint the TCP has come within PASSED of."""
@@ -262,7 +269,7 @@ def first_state(trajectory: Trajectory) -> LawState:
     points = trajectory.points
     heading = math.atan2(points[1][1] - points[0][1], points[1][0] - points[0][0])
     start = trajectory.times[0]
-    return LawState(heading, 0, (0.0, 0.0, 0.0), start, 1.0, start, 0)
+    return LawState(heading, 0, (0.0, 0.0, 0.0), start, 1.0, 0.0, start, 0)
 
 
 def stages_of(
@@ -369,8 +376,16 @@ def step(
     )
     away_passed = ops.where(index - 1 <= reached, -math.inf, to_before)
     wanted = _wanted_rate(ops, stage, progress, behind, away_passed)
-    rate_step = config.period / RATE_CHANGE
-    rate = ops.min(ops.max(wanted, state.rate - rate_step), state.rate + rate_step)
+    rate, rate_slope = ops.branch(
+        (wanted != state.rate) | (state.rate_slope != 0.0),
+        rate_towards,
+        (state.rate, state.rate_slope),  # at the wanted rate, and staying there
+        ops,
+        config.period,
+        state.rate,
+        state.rate_slope,
+        wanted,
+    )
     # The reference moves at rate times the plan's velocity: the path's curvature, and with
     # it the turn rate PT feeds forward, stay those of the plan.
     reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
@@ -524,7 +539,7 @@ def step(
         no_safe_motion,
         waited,
     )
-    return output, LawState(heading, side, command, progress, rate, t, reached)
+    return output, LawState(heading, side, command, progress, rate, rate_slope, t, reached)
 
 
 def _near_stop(ops: Ops, robot: RobotConfig, theta1: Real, theta2: Real) -> Mask:
@@ -549,6 +564,29 @@ def _turn_with_loop(
     """The turn rate of an arm on a loop (``steer``: how far, 0..1)."""
     turn = wrap_angle(ops.atan2(approach_y, approach_x) - heading)
     return omega + steer * (heading_gain * turn - omega)
+
+
+def rate_towards(
+    ops: Ops, period: float, rate: Real, slope: Real, wanted: Real
+) -> tuple[Real, Real]:
+    """The plan's rate and its slope a tick on, moving towards ``wanted`` by at most 1 per
+    RATE_CHANGE. Down at once, so that the plan waits where the gate closes; up with the slope
+    changing by at most that per RATE_RAMP, and no steeper than lets the rate still come to
+    ``wanted`` without passing it (where it would pass, it lands there, the slope the one
+    that lands)."""
+    steepest = 1.0 / RATE_CHANGE
+    bend = steepest / RATE_RAMP
+    step = bend * period
+    gap = wanted - rate
+    # From this slope, lowered by a step a tick, the rate covers the gap and no more.
+    half = 0.5 * step
+    braking = ops.min(steepest, ops.sqrt(half * half + 2.0 * bend * ops.max(gap, 0.0)) - half)
+    upward = ops.max(slope, 0.0)  # a rate falling stops falling at once, as it began
+    rising = ops.min(ops.max(braking, upward - step), upward + step)
+    slope = ops.where(gap > 0.0, rising, ops.max(gap / period, -steepest))
+    moved = rate + slope * period
+    landed = (moved - wanted) * gap >= 0.0
+    return ops.where(landed, wanted, moved), ops.where(landed, gap / period, slope)
 
 
 def _wanted_rate(ops: Ops, stage: Stage, progress: Real, behind: Real, away_passed: Real) -> Real:

@@ -3,6 +3,7 @@ a co-simulation's controller log, a replayed recording); see ``docs/design.md``.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -25,9 +26,9 @@ STOP_MIN_TICKS = 3
 STOP_EDGE_MARGIN = 0.2
 """... while the plan itself is moving, not within this many seconds of start or end ..."""
 STOP_REST_MARGIN = 0.1
-"""... nor within this many seconds of plan of a planned rest (a waypoint the plan stops at,
-or a place between two where its planar speed dips below the stop speed: the arm lags the
-plan, and slowing down to a planned stop is not a stop)."""
+"""... nor within this many seconds of plan of a stretch where the plan itself is slower than
+the stop speed (:func:`slow_stretches`: the arm lags the plan, and slowing down to a planned
+stop, or moving off from one, is not a stop)."""
 PLAN_SAMPLES = 2001
 """Points of the plan sampled for its length."""
 Array = npt.NDArray[np.float64]
@@ -112,35 +113,29 @@ def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
     return threshold, np.array(rests)
 
 
-def slow_passes(scenario: Scenario, threshold: float) -> list[float]:
-    """The times between waypoints where the plan's planar speed has a minimum below
-    ``threshold``: where a coordinate turns back within a segment (the cubic overshoots its
-    waypoint), the plan all but stops there. Exact: d|v|^2/dtau = 2 v.a is a cubic in each
-    segment's local time."""
+def slow_stretches(scenario: Scenario, threshold: float) -> list[tuple[float, float]]:
+    """The stretches of plan time where the plan's planar speed is below ``threshold``: its
+    rests at waypoints, a coordinate of a cubic turning back between two (it overshoots its
+    waypoint), and a plan that leaves a rest slowly. Exact: in each segment the speed squared
+    less the threshold's is a quartic in local time."""
     planned = plan_of(scenario)
-    found = []
+    stretches: list[tuple[float, float]] = []
     for index in range(len(planned.times) - 1):
         segments = [planned.segment(index, axis) for axis in (0, 1)]
-        # (k1 + 2 k2 tau + 3 k3 tau^2)(2 k2 + 6 k3 tau), highest power first, summed over x, y
-        slope = np.sum(
-            [
-                (18 * k3 * k3, 18 * k2 * k3, 6 * k1 * k3 + 4 * k2 * k2, 2 * k1 * k2)
-                for _, k1, k2, k3 in (segment.coefficients for segment in segments)
-            ],
-            axis=0,
-        )
-        if not slope.any():
-            continue
-        duration = segments[0].duration
-        for root in np.roots(slope):
-            tau = float(root.real)
-            if abs(root.imag) > 1e-12 or not 1e-9 < tau / duration < 1.0 - 1e-9:
-                continue  # complex, or outside: the waypoints' own rests are found apart
-            start = segments[0].t_start
-            speed = math.hypot(*(segment.velocity(start + tau) for segment in segments))
-            if speed < threshold:
-                found.append(start + tau)
-    return found
+        squared = -(threshold**2) * np.eye(5)[4]
+        for segment in segments:
+            _, k1, k2, k3 = segment.coefficients
+            squared = squared + np.polymul((3 * k3, 2 * k2, k1), (3 * k3, 2 * k2, k1))
+        start, duration = segments[0].t_start, segments[0].duration
+        roots: list[float] = list(np.roots(squared).real) if squared[:4].any() else []
+        cuts = sorted({0.0, duration, *(r for r in roots if 0.0 < r < duration)})
+        for low, high in itertools.pairwise(cuts):
+            if np.polyval(squared, 0.5 * (low + high)) < 0.0:
+                if stretches and stretches[-1][1] >= start + low - 1e-12:
+                    stretches[-1] = (stretches[-1][0], start + high)
+                else:
+                    stretches.append((start + low, start + high))
+    return stretches
 
 
 class MeasureStream:
@@ -192,10 +187,12 @@ class MeasureStream:
         self._before_last = np.array([s.waypoints[-2].t for s in scenarios])
         self._threshold = np.zeros(count)
         every_rest: list[list[float]] = []
+        every_stretch: list[list[tuple[float, float]]] = []
         for row, scenario in enumerate(scenarios):
             threshold, at_waypoints = stop_threshold_and_rests(scenario)
             self._threshold[row] = threshold
-            every_rest.append([*at_waypoints, *slow_passes(scenario, threshold)])
+            every_rest.append(list(at_waypoints))
+            every_stretch.append(slow_stretches(scenario, threshold))
         # Where the plan comes to rest at a waypoint, that waypoint from the time of the one
         # before it (an arm early there waits for the plan); NaN elsewhere.
         self._rest_times = np.full((count, max(self._counts)), math.inf)
@@ -206,9 +203,9 @@ class MeasureStream:
             for index, waypoint in enumerate(scenario.waypoints):
                 if index and waypoint.t in every_rest[row]:
                     self._rest_places[row, index] = (waypoint.x, waypoint.y)
-        self._rests = np.full((count, max(map(len, every_rest))), math.nan)
-        for row, rests in enumerate(every_rest):
-            self._rests[row, : len(rests)] = rests
+        self._slow = np.full((count, max(1, *map(len, every_stretch)), 2), math.nan)
+        for row, stretches in enumerate(every_stretch):
+            self._slow[row, : len(stretches)] = stretches
         self._rows = np.arange(count)
         self._min_clearance = np.full(count, math.inf)
         self._misses = np.full((count, self._waypoints.shape[1]), math.inf)
@@ -257,7 +254,7 @@ class MeasureStream:
             (columns["reference_speed"] >= self._threshold)
             & (progress >= self._start + STOP_EDGE_MARGIN)
             & (progress <= self._end - STOP_EDGE_MARGIN)
-            & ~near_any(progress, self._rests, STOP_REST_MARGIN)
+            & ~near_stretch(progress, self._slow, STOP_REST_MARGIN)
             & ~self._waiting_at_rest(progress, position)
             & valid
         )
@@ -358,7 +355,7 @@ class MeasureStream:
         "_end",
         "_before_last",
         "_threshold",
-        "_rests",
+        "_slow",
         "_rest_times",
         "_rest_places",
         "_min_clearance",
@@ -434,12 +431,13 @@ def _length(vectors: Array) -> Array:
     return np.asarray(np.sqrt(x * x + y * y + z * z))
 
 
-def near_any(values: np.ndarray, marks: np.ndarray, margin: float) -> np.ndarray:
-    """Which ``values`` lie within ``margin`` of one of ``marks`` (along the last axis of
-    ``marks``, which may hold one row of marks per column of ``values``; NaN marks none)."""
-    near = np.zeros(np.broadcast_shapes(values.shape, marks.shape[:-1]), dtype=bool)
-    for mark in np.moveaxis(marks, -1, 0):
-        near |= np.abs(values - mark) <= margin
+def near_stretch(values: np.ndarray, stretches: np.ndarray, margin: float) -> np.ndarray:
+    """Which ``values`` (ticks, runs) lie within ``margin`` of one of each run's ``stretches``
+    (runs, count, 2: start and end; NaN rows none)."""
+    near = np.zeros(values.shape, dtype=bool)
+    for index in range(stretches.shape[1]):
+        start, end = stretches[:, index, 0], stretches[:, index, 1]
+        near |= (values >= start - margin) & (values <= end + margin)
     return near
 
 

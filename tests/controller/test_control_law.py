@@ -20,6 +20,7 @@ from controller.behaviours import (
 from controller.control_law import (
     PASSED,
     RATE_CHANGE,
+    RATE_RAMP,
     WAITING_RATE,
     WAITING_REACH,
     ControlLaw,
@@ -27,6 +28,7 @@ from controller.control_law import (
     approach_pull,
     final_approach,
     height_lead,
+    rate_towards,
     reach_limited,
 )
 from controller.coordination import HEIGHT_FADE, WAY_PASSING_FULL, Coordination, weights
@@ -319,6 +321,33 @@ def test_the_plans_rate_changes_gradually() -> None:
     assert rate.min() < 0.5
     assert np.all((rate >= 0.0) & (rate <= 1.0 + 1e-12))
     assert np.abs(np.diff(rate)).max() <= period / RATE_CHANGE + 1e-9
+
+
+def test_the_plans_rate_moves_off_from_a_wait_without_a_step_in_its_slope() -> None:
+    """Up, the rate's slope ramps (by at most 1/RATE_CHANGE per RATE_RAMP), so that the
+    reference's acceleration does too, and the rate lands on 1 without passing it; down, it
+    goes at once, 1 to 0 in RATE_CHANGE, so that the plan waits where the gate closes."""
+    period = 0.002
+    step = period / (RATE_CHANGE * RATE_RAMP)
+    rate, slope = 0.0, 0.0
+    slopes = [slope]
+    while not (rate == 1.0 and slope == 0.0):
+        rate, slope = rate_towards(SCALAR, period, rate, slope, 1.0)
+        assert 0.0 <= rate <= 1.0
+        slopes.append(slope)
+    assert np.abs(np.diff(slopes)).max() <= step + 1e-9
+    assert max(slopes) == pytest.approx(1.0 / RATE_CHANGE)
+    assert len(slopes) * period < RATE_CHANGE + RATE_RAMP + 3 * period
+    rate, ticks = 1.0, 0
+    while rate > 0.0:
+        rate, slope = rate_towards(SCALAR, period, rate, slope, 0.0)
+        ticks += 1
+    assert ticks == round(RATE_CHANGE / period)
+    # Falling at full slope when the plan may move on again: the fall stops at once.
+    rate, slope = rate_towards(SCALAR, period, 0.5, 0.0, 0.0)
+    assert slope == -1.0 / RATE_CHANGE
+    rate, slope = rate_towards(SCALAR, period, rate, slope, 1.0)
+    assert 0.0 <= slope <= step + 1e-9 and rate >= 0.5 - period / RATE_CHANGE
 
 
 def test_the_plan_stands_still_while_the_node_holds() -> None:

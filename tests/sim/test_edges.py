@@ -100,6 +100,21 @@ def test_an_arm_early_at_a_waypoint_where_the_plan_rests_waits_there_for_it() ->
     assert gap[arrived:plan_there].max() <= WAYPOINT_TOLERANCE
 
 
+@pytest.mark.parametrize("index", [772, 895, 898])
+def test_where_the_plan_moves_off_after_a_wait_the_fuzzy_arm_is_still_the_smoother(
+    index: int,
+) -> None:
+    """Plans near the 0.6 m/s cap: the plan waited for the fuzzy arm at a waypoint, and its
+    rate rose with a step in its slope, the reference's acceleration with it (by up to 6
+    m/s^2); the arm, moving off, jerked more than the hard switch's did anywhere (895: 599
+    against 536 m/s^3). The rate's slope now ramps."""
+    task = generate_scenario_at(0, index, family=Family.EDGE_SPEED)
+    check_task(task)
+    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
+    assert fuzzy.outcome == conventional.outcome == "done"
+    assert fuzzy.peak_jerk < conventional.peak_jerk
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.EDGE_LIMIT, 824), (Family.EDGE_SPEED, 806)])
 def test_where_the_plan_turns_back_the_fuzzy_k_c_does_not_jump_as_dm_looks_on(
     family: Family, index: int

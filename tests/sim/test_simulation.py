@@ -23,7 +23,7 @@ from sim.measures import (
     WAYPOINT_TOLERANCE,
     MeasureStream,
     compute_measures,
-    slow_passes,
+    slow_stretches,
     stop_threshold_and_rests,
 )
 from sim.simulation import SimulationRun, simulate
@@ -177,20 +177,37 @@ def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
     assert stops == 0 and 1.0 < margin < 1.6
 
 
-def test_a_plan_that_all_but_stops_between_two_waypoints_rests_there() -> None:
-    # The last segment's cubic overshoots its waypoint: y turns back, and the plan's planar
-    # speed dips to 1.6 mm/s, below the stop speed, 1.3 s before the waypoint. The hard
-    # switch's arm, lagging, reverses 0.08 s after: slowing down to a planned stop.
-    scenario = generate_scenario_at(0, 388, family=Family.EDGE_OBSTACLE)
-    threshold, rests = stop_threshold_and_rests(scenario)
-    (dip,) = slow_passes(scenario, threshold)
-    assert not np.any(np.abs(rests - dip) < 1.0)  # no waypoint near it
-    times = np.linspace(scenario.waypoints[-2].t, dip + 0.5, PLAN_SAMPLES)
-    speeds = np.hypot(*plan_of(scenario).sample(times)[1][:, :2].T)
-    assert dip == pytest.approx(times[np.argmin(speeds)], abs=2e-3)
-    assert slow_passes(scenario, speeds.min() * 0.999) == []  # just faster: no rest
+@pytest.mark.parametrize(
+    ("index", "mode", "waypoint"),
+    [
+        # The last segment's cubic overshoots its waypoint: y turns back, and the plan's
+        # planar speed dips to 1.6 mm/s, below the stop speed (3.7), 1.3 s before the
+        # waypoint; the hard switch's arm, lagging, reverses 0.08 s after.
+        (388, Mode.CONVENTIONAL, None),
+        # The plan leaves a rest so slowly that it is back at the stop speed only 0.104 s
+        # after it; the arm, 4 ms behind, was below it 3 ticks more.
+        (658, Mode.CONVENTIONAL, 3),
+    ],
+)
+def test_where_the_plan_itself_is_slower_than_the_stop_speed_it_rests(
+    index: int, mode: Mode, waypoint: int | None
+) -> None:
+    scenario = generate_scenario_at(0, index, family=Family.EDGE_OBSTACLE)
+    threshold = stop_threshold_and_rests(scenario)[0]
+    stretches = slow_stretches(scenario, threshold)
+    if waypoint is None:  # a dip between two waypoints
+        times = [w.t for w in scenario.waypoints]
+        (start, end), *_ = [(a, b) for a, b in stretches if min(abs(t - a) for t in times) > 1.0]
+    else:  # round a waypoint, ending more than STOP_REST_MARGIN after it
+        (start, end), *_ = [(a, b) for a, b in stretches if a < scenario.waypoints[waypoint].t < b]
+        assert end > scenario.waypoints[waypoint].t + 0.05  # well past the rest itself
+    samples = np.linspace(start - 0.05, end + 0.05, PLAN_SAMPLES)
+    speeds = np.hypot(*plan_of(scenario).sample(samples)[1][:, :2].T)
+    slow = samples[speeds < threshold]
+    assert slow.min() == pytest.approx(start, abs=1e-4)
+    assert slow.max() == pytest.approx(end, abs=1e-4)
 
-    run = simulate(scenario, Mode.CONVENTIONAL)
+    run = simulate(scenario, mode)
     assert run.measures.stops == 0
     progress = run.log["progress"]
 
@@ -203,9 +220,9 @@ def test_a_plan_that_all_but_stops_between_two_waypoints_rests_there() -> None:
         return compute_measures(scenario, tampered, run.measures.outcome).stops
 
     tick = scenario.controller.period
-    assert stops_frozen_at(dip + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
-    assert stops_frozen_at(dip + STOP_REST_MARGIN + tick) == 1
-    assert stops_frozen_at(dip - STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 1
+    assert stops_frozen_at(end + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
+    assert stops_frozen_at(end + STOP_REST_MARGIN + tick) == 1
+    assert stops_frozen_at(start - STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 1
 
 
 @pytest.mark.parametrize(("gap", "stops"), [(0.9999, 0), (1.0001, 1)])
