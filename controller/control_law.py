@@ -154,6 +154,8 @@ class Stage(NamedTuple):
     leaving: tuple[Real, Real]
     """The plan's way out of p_j (:func:`_leaving`)."""
     leaving_before: tuple[Real, Real]
+    rests: Mask
+    """The plan comes to rest at p_j (no way out of it): PT's crawl ends there."""
     inner: Mask
     """p_j is an inner waypoint (not the last)."""
     inner_before: Mask
@@ -329,6 +331,7 @@ def stages_of(
                 loop_radii[index - 1],
                 leaving[index],
                 leaving[index - 1],
+                leaving[index] == (0.0, 0.0),
                 index < count - 1,
                 index >= 2,
                 *windows[index - 1],
@@ -421,7 +424,7 @@ def step(
         (reference[0], reference[1]),
         (reference_velocity[0], reference_velocity[1]),
         (squared * acceleration[0], squared * acceleration[1]),
-        (stage.point[0], stage.point[1], (stage.leaving[0] == 0.0) & (stage.leaving[1] == 0.0)),
+        (stage.point[0], stage.point[1], stage.rests),
     )
     avoiding, side = avoid_obstacle(
         ops,

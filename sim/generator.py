@@ -743,9 +743,10 @@ def _moves_sensibly(scenario: Scenario) -> bool:
     """The plan never crawls (below CRAWL_FRACTION of its mean planar speed) except within
     STOP_REST_MARGIN of a waypoint it stops at: a crawl is where the stop measure cannot
     tell a lagging arm from a stopped one (the wire's velocity quantum is 1e-3 rad/s)."""
-    threshold, rests = stop_threshold_and_rests(scenario)
-    crawl = threshold * CRAWL_FRACTION / STOP_SPEED_FRACTION
     plan = plan_of(scenario)
+    threshold, rest_indices = stop_threshold_and_rests(plan)
+    rests = np.array([plan.times[index] for index in rest_indices])
+    crawl = threshold * CRAWL_FRACTION / STOP_SPEED_FRACTION
     times = np.linspace(scenario.waypoints[0].t, scenario.waypoints[-1].t, PATH_SAMPLES)
     velocities = plan.sample(times)[1].tolist()
     speeds = np.array([math.hypot(vx, vy) for vx, vy, _ in velocities])

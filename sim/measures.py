@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from controller.planner import plan_of
+from controller.planner import Trajectory, plan_of
 from controller.run_end import RunOutcome
 from controller.runlog import RunLog
 from protocol.kinematics import tcp_velocity
@@ -95,34 +95,32 @@ def compute_measures(scenario: Scenario, log: RunLog, outcome: RunOutcome) -> Me
     return stream.measures([outcome])[0]
 
 
-def stop_threshold_and_rests(scenario: Scenario) -> tuple[float, np.ndarray]:
+def stop_threshold_and_rests(planned: Trajectory) -> tuple[float, list[int]]:
     """The speed below which the arm counts as stopped (STOP_SPEED_FRACTION of the plan's mean
-    planar speed), and the plan's rests: the times of the waypoints it passes slower than
-    that (it stops where a coordinate turns back)."""
-    waypoints = scenario.waypoints
-    planned = plan_of(scenario)
-    samples = np.linspace(waypoints[0].t, waypoints[-1].t, PLAN_SAMPLES)
+    planar speed), and the plan's rests: the waypoints (by index) it passes slower than that
+    (it stops where a coordinate turns back)."""
+    times = planned.times
+    samples = np.linspace(times[0], times[-1], PLAN_SAMPLES)
     planned_points = planned.sample(samples)[0]
     planned_length = float(np.sum(np.linalg.norm(np.diff(planned_points[:, :2], axis=0), axis=1)))
-    threshold = STOP_SPEED_FRACTION * planned_length / (waypoints[-1].t - waypoints[0].t)
+    threshold = STOP_SPEED_FRACTION * planned_length / (times[-1] - times[0])
     rests = [
-        time
-        for time, velocity in zip(planned.times, planned.velocities, strict=True)
+        index
+        for index, velocity in enumerate(planned.velocities)
         if math.hypot(velocity[0], velocity[1]) < threshold
     ]
-    return threshold, np.array(rests)
+    return threshold, rests
 
 
-def slow_stretches(scenario: Scenario, threshold: float) -> list[tuple[float, float]]:
+def slow_stretches(planned: Trajectory, threshold: float) -> list[tuple[float, float]]:
     """The stretches of plan time where the plan's planar speed is below ``threshold``: its
     rests at waypoints, a coordinate of a cubic turning back between two (it overshoots its
     waypoint), and a plan that leaves a rest slowly. Exact: in each segment the speed squared
     less the threshold's is a quartic in local time."""
-    planned = plan_of(scenario)
     stretches: list[tuple[float, float]] = []
     for index in range(len(planned.times) - 1):
         segments = [planned.segment(index, axis) for axis in (0, 1)]
-        squared = -(threshold**2) * np.eye(5)[4]
+        squared = np.array([0.0, 0.0, 0.0, 0.0, -(threshold**2)])
         for segment in segments:
             _, k1, k2, k3 = segment.coefficients
             squared = squared + np.polymul((3 * k3, 2 * k2, k1), (3 * k3, 2 * k2, k1))
@@ -186,23 +184,20 @@ class MeasureStream:
         self._end = np.array([s.waypoints[-1].t for s in scenarios])
         self._before_last = np.array([s.waypoints[-2].t for s in scenarios])
         self._threshold = np.zeros(count)
-        every_rest: list[list[float]] = []
-        every_stretch: list[list[tuple[float, float]]] = []
-        for row, scenario in enumerate(scenarios):
-            threshold, at_waypoints = stop_threshold_and_rests(scenario)
-            self._threshold[row] = threshold
-            every_rest.append(list(at_waypoints))
-            every_stretch.append(slow_stretches(scenario, threshold))
         # Where the plan comes to rest at a waypoint, that waypoint from the time of the one
         # before it (an arm early there waits for the plan); NaN elsewhere.
         self._rest_times = np.full((count, max(self._counts)), math.inf)
         self._rest_places = np.full((count, max(self._counts), 2), math.nan)
+        every_stretch: list[list[tuple[float, float]]] = []
         for row, scenario in enumerate(scenarios):
-            times = [w.t for w in scenario.waypoints]
-            self._rest_times[row, : len(times)] = times
-            for index, waypoint in enumerate(scenario.waypoints):
-                if index and waypoint.t in every_rest[row]:
-                    self._rest_places[row, index] = (waypoint.x, waypoint.y)
+            planned = plan_of(scenario)
+            threshold, rests = stop_threshold_and_rests(planned)
+            self._threshold[row] = threshold
+            every_stretch.append(slow_stretches(planned, threshold))
+            self._rest_times[row, : len(planned.times)] = planned.times
+            for index in rests:
+                if index:
+                    self._rest_places[row, index] = planned.points[index][:2]
         self._slow = np.full((count, max(1, *map(len, every_stretch)), 2), math.nan)
         for row, stretches in enumerate(every_stretch):
             self._slow[row, : len(stretches)] = stretches

@@ -142,7 +142,7 @@ def test_measures_do_not_depend_on_the_blocks_a_log_is_fed_in(block: int) -> Non
 
 def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
     run = simulate(load_scenario("no_obstacle"), Mode.FUZZY)
-    threshold = stop_threshold_and_rests(run.scenario)[0]
+    threshold = stop_threshold_and_rests(plan_of(run.scenario))[0]
     assert run.measures.stops == 0 and 1.0 < run.measures.stop_margin < math.inf
     middle = len(run.log) // 3
     stretch = slice(middle, middle + 10)
@@ -193,8 +193,9 @@ def test_where_the_plan_itself_is_slower_than_the_stop_speed_it_rests(
     index: int, mode: Mode, waypoint: int | None
 ) -> None:
     scenario = generate_scenario_at(0, index, family=Family.EDGE_OBSTACLE)
-    threshold = stop_threshold_and_rests(scenario)[0]
-    stretches = slow_stretches(scenario, threshold)
+    planned = plan_of(scenario)
+    threshold = stop_threshold_and_rests(planned)[0]
+    stretches = slow_stretches(planned, threshold)
     if waypoint is None:  # a dip between two waypoints
         times = [w.t for w in scenario.waypoints]
         (start, end), *_ = [(a, b) for a, b in stretches if min(abs(t - a) for t in times) > 1.0]
@@ -202,7 +203,7 @@ def test_where_the_plan_itself_is_slower_than_the_stop_speed_it_rests(
         (start, end), *_ = [(a, b) for a, b in stretches if a < scenario.waypoints[waypoint].t < b]
         assert end > scenario.waypoints[waypoint].t + 0.05  # well past the rest itself
     samples = np.linspace(start - 0.05, end + 0.05, PLAN_SAMPLES)
-    speeds = np.hypot(*plan_of(scenario).sample(samples)[1][:, :2].T)
+    speeds = np.hypot(*planned.sample(samples)[1][:, :2].T)
     slow = samples[speeds < threshold]
     assert slow.min() == pytest.approx(start, abs=1e-4)
     assert slow.max() == pytest.approx(end, abs=1e-4)
