@@ -392,6 +392,7 @@ def step(
     # The reference moves at rate times the plan's velocity: the path's curvature, and with
     # it the turn rate PT feeds forward, stay those of the plan.
     reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
+    plan_speed = length(ops, velocity[0], velocity[1])  # the plan's own, in the plane
     squared = rate * rate
     depth_next = _depth(ops, stage.room, to_next)
     depth_before = _depth(ops, stage.room_before, to_before)
@@ -425,6 +426,7 @@ def step(
         (reference_velocity[0], reference_velocity[1]),
         (squared * acceleration[0], squared * acceleration[1]),
         (stage.point[0], stage.point[1], stage.rests),
+        ops.where(index <= reached, plan_speed, 0.0),
     )
     avoiding, side = avoid_obstacle(
         ops,
@@ -529,7 +531,7 @@ def step(
         command,
         tcp,
         reference,
-        length(ops, velocity[0], velocity[1]),
+        plan_speed,
         measurement,
         tracking,
         avoiding,

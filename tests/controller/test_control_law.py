@@ -46,11 +46,13 @@ from sim.simulation import simulate
 CONFIG = ControllerConfig()
 NO_REST = (0.0, 0.0, False)
 """PT's ``rest_ahead`` where the plan does not rest at the waypoint ahead."""
+NOT_PASSED = 0.0
+"""PT's ``moving_off`` before the TCP has passed the waypoint the plan heads for."""
 
 
 def test_tracking_on_the_plan_follows_it() -> None:
     command = plan_tracking(
-        SCALAR, CONFIG, 0.0, (0.3, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST
+        SCALAR, CONFIG, 0.0, (0.3, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST, NOT_PASSED
     )
     assert command.v == pytest.approx(0.2)
     assert command.omega == pytest.approx(0.0)
@@ -58,7 +60,7 @@ def test_tracking_on_the_plan_follows_it() -> None:
 
 def test_tracking_ahead_of_the_plan_slows_down_instead_of_turning_round() -> None:
     command = plan_tracking(
-        SCALAR, CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST
+        SCALAR, CONFIG, 0.0, (0.35, 0.0), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST, NOT_PASSED
     )
     assert command.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)  # crawls on, never stops
     assert command.omega == pytest.approx(0.0)
@@ -81,11 +83,11 @@ def test_tracking_ahead_of_the_plan_crawls_no_further_than_where_the_plan_comes_
     arm = (0.35, 0.0)
     rest = (arm[0] + short_of_rest, 0.0)
     command = plan_tracking(
-        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), (*rest, True)
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), (*rest, True), NOT_PASSED
     )
     assert command.v == pytest.approx(along)
     passing = plan_tracking(
-        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), (*rest, False)
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), (*rest, False), NOT_PASSED
     )
     assert passing.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)
     # 1 mm past it, its way points back at it (v 0 forwards: PT turns the arm, or backs it)
@@ -98,8 +100,29 @@ def test_tracking_ahead_of_the_plan_crawls_no_further_than_where_the_plan_comes_
         (0.2, 0.0),
         (0.0, 0.0),
         (*rest, True),
+        NOT_PASSED,
     )
     assert past.v == 0.0 and past.speed == pytest.approx(CONFIG.position_gain * 0.001)
+
+
+@pytest.mark.parametrize("rate", [0.0001, 0.05, 0.5, 1.0])
+def test_tracking_past_the_waypoint_crawls_at_a_share_of_the_plans_own_speed(rate: float) -> None:
+    """The plan waited short of a waypoint the arm has now passed, and moves off at a rising
+    rate: the arm, 5 cm ahead, crawls on at a share of the plan's own speed (0.2 m/s), not of
+    the rate's share of it, even while that share is below the speed of a plan at rest.
+    Before the waypoint is passed, at the rate's share; or, the plan at rest, PT aims back at
+    the reference."""
+    arm, planned = (0.35, 0.0), (0.2 * rate, 0.0)
+    passed = plan_tracking(SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, 0.2)
+    assert passed.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)
+    before = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, NOT_PASSED
+    )
+    if 0.2 * rate >= PLANNED_REST_SPEED:
+        assert before.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2 * rate)
+    else:
+        assert before.v == 0.0
+        assert before.speed == pytest.approx(CONFIG.position_gain * 0.05 - 0.2 * rate)
 
 
 @pytest.mark.parametrize("planned", [0.004, 0.006])
@@ -110,12 +133,28 @@ def test_tracking_a_plan_coming_to_a_rest_keeps_its_speed_either_side_of_the_res
     aimed at the reference alone below it, and stood still while the plan moved on)."""
     assert 0.004 < PLANNED_REST_SPEED < 0.006  # the two cases sit either side of it
     on_plan = plan_tracking(
-        SCALAR, CONFIG, math.pi / 2, (0.3, 0.0), (0.3, 0.0), (0.0, planned), (0.0, 0.0), NO_REST
+        SCALAR,
+        CONFIG,
+        math.pi / 2,
+        (0.3, 0.0),
+        (0.3, 0.0),
+        (0.0, planned),
+        (0.0, 0.0),
+        NO_REST,
+        NOT_PASSED,
     )
     assert on_plan.v == pytest.approx(planned)
     assert on_plan.omega == pytest.approx(0.0)
     behind = plan_tracking(
-        SCALAR, CONFIG, math.pi / 2, (0.3, -0.001), (0.3, 0.0), (0.0, planned), (0.0, 0.0), NO_REST
+        SCALAR,
+        CONFIG,
+        math.pi / 2,
+        (0.3, -0.001),
+        (0.3, 0.0),
+        (0.0, planned),
+        (0.0, 0.0),
+        NO_REST,
+        NOT_PASSED,
     )
     assert behind.v == pytest.approx(planned + CONFIG.position_gain * 0.001)
 
@@ -127,7 +166,7 @@ def test_tracking_a_way_behind_the_heading_goes_there_backwards(planned: float) 
     half round, it goes that way at once, at the speed PT wants."""
     behind = (0.3 + 0.001, 0.0)  # the reference lies 1 mm behind an arm heading along +x
     tracking = plan_tracking(
-        SCALAR, CONFIG, 0.0, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0), NO_REST
+        SCALAR, CONFIG, 0.0, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0), NO_REST, NOT_PASSED
     )
     assert tracking.v == 0.0
     assert tracking.speed == pytest.approx(planned + CONFIG.position_gain * 0.001)
@@ -135,7 +174,7 @@ def test_tracking_a_way_behind_the_heading_goes_there_backwards(planned: float) 
     assert backward.v == pytest.approx(tracking.speed)  # along the heading turned to -x
     assert backward.omega == pytest.approx(0.0, abs=1e-9)
     aside = plan_tracking(
-        SCALAR, CONFIG, 0.5, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0), NO_REST
+        SCALAR, CONFIG, 0.5, behind, (0.3, 0.0), (-planned, 0.0), (0.0, 0.0), NO_REST, NOT_PASSED
     )
     # heading 0.5 rad: its back, at 0.5 + pi, turns by -0.5 rad onto the way (-x)
     assert backward_tracking(SCALAR, CONFIG, aside).omega == pytest.approx(
@@ -176,7 +215,7 @@ def test_at_a_runs_start_the_heading_is_not_turned_round_for_micrometres() -> No
 
 def test_tracking_beside_the_plan_steers_back() -> None:
     left_of_plan = plan_tracking(
-        SCALAR, CONFIG, 0.0, (0.3, 0.02), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST
+        SCALAR, CONFIG, 0.0, (0.3, 0.02), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), NO_REST, NOT_PASSED
     )
     assert left_of_plan.omega < 0.0  # turn right, back onto the path
     assert 0.0 < left_of_plan.v <= CONFIG.speed_max

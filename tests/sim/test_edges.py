@@ -4,11 +4,15 @@ of sim/study/refusals.py; the inside twins done in both modes."""
 
 from __future__ import annotations
 
+import math
 from itertools import pairwise
 
 import numpy as np
 import pytest
 
+from controller.behaviours import AHEAD_SPEED_FRACTION
+from controller.control_law import ControlLaw
+from controller.planner import plan_of
 from controller.task_rules import check_task, rule_of
 from protocol.errors import ConfigError
 from protocol.scenario import Mode
@@ -98,6 +102,35 @@ def test_an_arm_early_at_a_waypoint_where_the_plan_rests_waits_there_for_it() ->
     plan_there = int(np.argmax(log["progress"] >= rest.t))
     assert log["progress"][arrived] < rest.t - 0.5  # early, by more than half a second
     assert gap[arrived:plan_there].max() <= WAYPOINT_TOLERANCE
+
+
+@pytest.mark.parametrize("mode", list(Mode))
+def test_an_arm_past_a_waypoint_the_plan_waited_short_of_crawls_on_along_the_plan(
+    mode: Mode,
+) -> None:
+    """A plan near the 0.6 m/s cap waited 7 mm short of a doorstep waypoint for the arm
+    (edge_speed 523). Once the arm had passed it, the plan moved off at a rate rising from 0;
+    PT aimed back at the reference while the rate's share of the plan's speed was that of a
+    rest, then crawled at that share: the arm slowed to 1.06 (fuzzy) and 1.19 (hard switch)
+    times the stop speed. From the tick the arm passes, PT now goes along the plan at no less
+    than the crawl of the plan's own speed. The law is replayed on the run's joints."""
+    task = generate_scenario_at(0, 523, family=Family.EDGE_SPEED)
+    check_task(task)
+    run = simulate(task, mode)
+    assert run.measures.outcome == "done" and run.measures.stops == 0
+    plan, waypoint = plan_of(task), 1
+    law = ControlLaw.for_scenario(run.scenario)
+    shares = []
+    for t, *joints in run.log.columns("t", "theta1", "theta2", "d3"):
+        heading = float(law.state.heading)
+        output = law.step(t, (joints[0], joints[1], joints[2]))
+        if law.state.reached >= waypoint and output.progress < task.waypoints[waypoint].t:
+            planned = plan.evaluate(output.progress)[1]
+            way = heading + output.tracking.error - math.atan2(planned[1], planned[0])
+            along = output.tracking.speed * math.cos(way)
+            shares.append(along / (AHEAD_SPEED_FRACTION * math.hypot(planned[0], planned[1])))
+    assert len(shares) > 10  # the reference still short of the waypoint for some ticks
+    assert min(shares) >= 1.0 - 1e-9, min(shares)
 
 
 @pytest.mark.parametrize("index", [772, 895, 898])
