@@ -93,12 +93,11 @@ def plan_tracking(
     plan's own speed (0 before): the plan, waiting short of that waypoint, moves off at a
     rising rate, and a crawl at that rate's share of its speed (or, while the rate was still
     small, aiming back at the reference as at a rest) stood the arm still on the waypoint until
-    the reference came. But where the plan comes to
-    rest at the waypoint ahead (``rest_ahead``: its place, and whether the plan rests there)
-    the crawl ends there: it slows to ``position_gain`` times the TCP's way to it, along the
-    plan, and waits there for the plan (crawling on, it went past the waypoint, away from
-    where the plan stops, and had to come back). The plan's own turn rate is
-    fed forward. Where the plan (nearly) stands still the wanted velocity is the same sum,
+    the reference came. But where the plan comes to rest at the waypoint ahead
+    (``rest_ahead``: its place, and whether the plan rests there) the crawl ends there: it
+    slows to ``position_gain`` times the TCP's way to it, along the plan, and waits there for
+    the plan (crawling on, it went past the waypoint, away from where the plan stops, and had
+    to come back). The plan's own turn rate is fed forward. Where the plan (nearly) stands still the wanted velocity is the same sum,
     steered to as a whole: aiming at the planned point alone dropped the plan's last few mm/s
     as it came to a rest or left one, and an arm on its reference slowed to a stop there.
     """
