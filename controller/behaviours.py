@@ -97,9 +97,10 @@ def plan_tracking(
     (``rest_ahead``: its place, and whether the plan rests there) the crawl ends there: it
     slows to ``position_gain`` times the TCP's way to it, along the plan, and waits there for
     the plan (crawling on, it went past the waypoint, away from where the plan stops, and had
-    to come back). The plan's own turn rate is fed forward. Where the plan (nearly) stands still the wanted velocity is the same sum,
-    steered to as a whole: aiming at the planned point alone dropped the plan's last few mm/s
-    as it came to a rest or left one, and an arm on its reference slowed to a stop there.
+    to come back). The plan's own turn rate is fed forward. Where the plan (nearly) stands
+    still the wanted velocity is the same sum, steered to as a whole: aiming at the planned
+    point alone dropped the plan's last few mm/s as it came to a rest or left one, and an arm
+    on its reference slowed to a stop there.
     """
     error_x, error_y = reference[0] - position[0], reference[1] - position[1]
     vx, vy = reference_velocity
