@@ -79,7 +79,7 @@ def plan_tracking(
     reference_velocity: tuple[Real, Real],
     reference_acceleration: tuple[Real, Real],
     rest_ahead: tuple[Real, Real, Mask],
-    moving_off: Real,
+    past_waypoint: tuple[Real, Real],
 ) -> Tracking:
     """PT: follow the planned point; eq. 26's (v_T, omega_T).
 
@@ -88,30 +88,38 @@ def plan_tracking(
     moves at its size (so an arm beside a plan that slows down or waits still closes the
     gap). Along, it is never below AHEAD_SPEED_FRACTION of the planned speed: a TCP ahead of
     the plan (AO may drive it faster than planned) lets the plan catch up at a crawl rather
-    than turning round, or standing still while the plan moves; and once the TCP has passed
-    the waypoint the plan heads for, at least AHEAD_SPEED_FRACTION of ``moving_off``, the
-    plan's own speed (0 before): the plan, waiting short of that waypoint, moves off at a
-    rising rate, and a crawl at that rate's share of its speed (or, while the rate was still
-    small, aiming back at the reference as at a rest) stood the arm still on the waypoint until
-    the reference came. But where the plan comes to rest at the waypoint ahead
-    (``rest_ahead``: its place, and whether the plan rests there) the crawl ends there: it
-    slows to ``position_gain`` times the TCP's way to it, along the plan, and waits there for
-    the plan (crawling on, it went past the waypoint, away from where the plan stops, and had
-    to come back). The plan's own turn rate is fed forward. Where the plan (nearly) stands
-    still the wanted velocity is the same sum, steered to as a whole: aiming at the planned
-    point alone dropped the plan's last few mm/s as it came to a rest or left one, and an arm
-    on its reference slowed to a stop there.
+    than turning round, or standing still while the plan moves.
+
+    Once the TCP has passed the waypoint the plan heads for, ``past_waypoint`` gives the
+    plan's own speed and the TCP's last commanded speed up to it (both 0 before the pass).
+    The crawl is then at least AHEAD_SPEED_FRACTION of the plan's own speed: the plan, waiting
+    short of that waypoint, moves off at a rising rate, and a crawl at that rate's share of
+    its speed (or, while the rate was still small, aiming back at the reference as at a rest)
+    stood the arm still on the waypoint until the reference came. Nor does PT brake the TCP
+    below its last speed: an arm a little ahead where the plan turns back slowly through the
+    waypoint, braked to the crawl, wanted a way that swung round with the plan faster than
+    the heading could follow, and stood.
+
+    But where the plan comes to rest at the waypoint ahead (``rest_ahead``: its place, and
+    whether the plan rests there) the crawl ends there: it slows to ``position_gain`` times
+    the TCP's way to it, along the plan, and waits there for the plan (crawling on, it went
+    past the waypoint, away from where the plan stops, and had to come back). The plan's own
+    turn rate is fed forward. Where the plan (nearly) stands still the wanted velocity is the
+    same sum, steered to as a whole: aiming at the planned point alone dropped the plan's last
+    few mm/s as it came to a rest or left one, and an arm on its reference slowed to a stop
+    there.
     """
     error_x, error_y = reference[0] - position[0], reference[1] - position[1]
     vx, vy = reference_velocity
     planned_speed = length(ops, vx, vy)
+    moving_off, kept = past_waypoint
     moving = ops.max(planned_speed, moving_off)
     at_rest = moving < PLANNED_REST_SPEED
     divisor = ops.where(at_rest, 1.0, planned_speed)
     along_x, along_y = vx / divisor, vy / divisor
     lag = error_x * along_x + error_y * along_y
     offset = along_x * error_y - along_y * error_x
-    crawl = AHEAD_SPEED_FRACTION * moving
+    crawl = ops.max(AHEAD_SPEED_FRACTION * moving, kept)
     rest_x, rest_y, resting = rest_ahead
     to_rest = (rest_x - position[0]) * along_x + (rest_y - position[1]) * along_y
     crawl = ops.where(resting, ops.min(crawl, config.position_gain * to_rest), crawl)

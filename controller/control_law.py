@@ -393,6 +393,10 @@ def step(
     # it the turn rate PT feeds forward, stay those of the plan.
     reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
     plan_speed = length(ops, velocity[0], velocity[1])  # the plan's own, in the plane
+    # The TCP's speed in the plane as last commanded.
+    last_speed = length(
+        ops, *tcp_velocity(law.robot, theta1, theta2, state.previous[0], state.previous[1], ops)
+    )
     squared = rate * rate
     depth_next = _depth(ops, stage.room, to_next)
     depth_before = _depth(ops, stage.room_before, to_before)
@@ -417,6 +421,7 @@ def step(
     )
     min_distance = ops.min(measurement.d_left, measurement.d_right)
 
+    passed_next = index <= reached
     tracking = plan_tracking(
         ops,
         config,
@@ -426,7 +431,10 @@ def step(
         (reference_velocity[0], reference_velocity[1]),
         (squared * acceleration[0], squared * acceleration[1]),
         (stage.point[0], stage.point[1], stage.rests),
-        ops.where(index <= reached, plan_speed, 0.0),
+        (
+            ops.where(passed_next, plan_speed, 0.0),
+            ops.where(passed_next, ops.min(last_speed, plan_speed), 0.0),
+        ),
     )
     avoiding, side = avoid_obstacle(
         ops,
@@ -469,8 +477,7 @@ def step(
     # moves on (where the plan turns back at a waypoint, or the hard switch hands an arm back).
     backward = (k_c == 0.0) & (tracking.v == 0.0) & (tracking.speed > BACKWARD_SPEED)
     if ops.any(backward):
-        last = tcp_velocity(law.robot, theta1, theta2, state.previous[0], state.previous[1], ops)
-        backward = backward & (length(ops, last[0], last[1]) < PLANNED_REST_SPEED)
+        backward = backward & (last_speed < PLANNED_REST_SPEED)
         reversed_command = backward_tracking(ops, config, tracking)
         blended = Command(
             ops.where(backward, reversed_command.v, blended.v),

@@ -46,8 +46,8 @@ from sim.simulation import simulate
 CONFIG = ControllerConfig()
 NO_REST = (0.0, 0.0, False)
 """PT's ``rest_ahead`` where the plan does not rest at the waypoint ahead."""
-NOT_PASSED = 0.0
-"""PT's ``moving_off`` before the TCP has passed the waypoint the plan heads for."""
+NOT_PASSED = (0.0, 0.0)
+"""PT's ``past_waypoint`` before the TCP has passed the waypoint the plan heads for."""
 
 
 def test_tracking_on_the_plan_follows_it() -> None:
@@ -113,7 +113,9 @@ def test_tracking_past_the_waypoint_crawls_at_a_share_of_the_plans_own_speed(rat
     Before the waypoint is passed, at the rate's share; or, the plan at rest, PT aims back at
     the reference."""
     arm, planned = (0.35, 0.0), (0.2 * rate, 0.0)
-    passed = plan_tracking(SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, 0.2)
+    passed = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, (0.2, 0.0)
+    )
     assert passed.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2)
     before = plan_tracking(
         SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, NOT_PASSED
@@ -123,6 +125,22 @@ def test_tracking_past_the_waypoint_crawls_at_a_share_of_the_plans_own_speed(rat
     else:
         assert before.v == 0.0
         assert before.speed == pytest.approx(CONFIG.position_gain * 0.05 - 0.2 * rate)
+
+
+@pytest.mark.parametrize("last", [0.0, 0.03, 0.12, 0.2])
+def test_tracking_past_the_waypoint_does_not_brake_the_arm_below_its_last_speed(
+    last: float,
+) -> None:
+    """Past the waypoint the plan heads for, an arm 5 cm ahead of a plan at 0.2 m/s goes on
+    at the speed it was last sent at (up to the plan's, as the law passes it), or at the
+    crawl where that is the faster: braked to the crawl where the plan turns back slowly
+    through the waypoint, it wanted a way that swung round faster than its heading turned."""
+    arm, planned = (0.35, 0.0), (0.2, 0.0)
+    passed = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, (0.2, last)
+    )
+    assert passed.v == pytest.approx(max(last, AHEAD_SPEED_FRACTION * 0.2))
+    assert passed.error == pytest.approx(0.0)
 
 
 @pytest.mark.parametrize("planned", [0.004, 0.006])

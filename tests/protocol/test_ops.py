@@ -239,7 +239,9 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
     acceleration = rng.uniform(-1.0, 1.0, (2, count))
     rest = position + rng.uniform(-0.01, 0.01, (2, count))  # ahead of some, behind others
     resting = rng.uniform(size=count) < 0.5
-    moving_off = np.where(rng.uniform(size=count) < 0.5, rng.uniform(0.0, 0.3, count), 0.0)
+    passed = rng.uniform(size=count) < 0.5
+    moving_off = np.where(passed, rng.uniform(0.0, 0.3, count), 0.0)
+    kept = np.where(passed, rng.uniform(0.0, 1.0, count) * moving_off, 0.0)
     tracking = plan_tracking(
         ARRAY,
         config,
@@ -249,7 +251,7 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
         tuple(velocity),
         tuple(acceleration),
         (rest[0], rest[1], resting),
-        moving_off,
+        (moving_off, kept),
     )
     for index in range(count):
         one = plan_tracking(
@@ -261,7 +263,7 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
             tuple(velocity[:, index].tolist()),
             tuple(acceleration[:, index].tolist()),
             (float(rest[0, index]), float(rest[1, index]), bool(resting[index])),
-            float(moving_off[index]),
+            (float(moving_off[index]), float(kept[index])),
         )
         assert_same(_at(tuple(tracking), index), tuple(one), index)
     backward = backward_tracking(ARRAY, config, tracking)

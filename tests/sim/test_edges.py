@@ -133,6 +133,22 @@ def test_an_arm_past_a_waypoint_the_plan_waited_short_of_crawls_on_along_the_pla
     assert min(shares) >= 1.0 - 1e-9, min(shares)
 
 
+@pytest.mark.parametrize("mode", list(Mode))
+def test_an_arm_a_little_ahead_where_the_plan_turns_back_slowly_keeps_moving(mode: Mode) -> None:
+    """The plan turns back 165 degrees through a waypoint at 7 mm/s, 1.5 times the stop speed
+    (edge_reach 614). The fuzzy arm, past the waypoint 0.6 mm ahead of the reference, was
+    braked to a quarter of the plan's speed; the way it wanted swung round faster than its
+    heading, and it stood at 0.92 times the stop speed. PT no longer brakes an arm past the
+    waypoint below its last speed (up to the plan's)."""
+    task = generate_scenario_at(0, 614, family=Family.EDGE_REACH)
+    check_task(task)
+    plan = plan_of(task)
+    turn = [math.atan2(v[1], v[0]) for v in (plan.evaluate(t)[1] for t in (0.95, 1.05))]
+    assert abs(math.remainder(turn[1] - turn[0], math.tau)) > math.radians(150)  # turns back
+    measures = simulate(task, mode).measures
+    assert measures.outcome == "done" and measures.stops == 0
+
+
 @pytest.mark.parametrize("index", [772, 895, 898])
 def test_where_the_plan_moves_off_after_a_wait_the_fuzzy_arm_is_still_the_smoother(
     index: int,
