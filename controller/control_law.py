@@ -36,7 +36,7 @@ from controller.planner import Trajectory, cubic, plan_of
 from controller.safety import Limits, barrier, box, filtered, limits_of
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.geometry import EllipticCylinder, Section, distance, length, wrap_angle
-from protocol.kinematics import arm_trig, joint_rates, reach_radii, tcp_velocity, tool_position
+from protocol.kinematics import arm_trig, joint_rates, reach_radii, tool_position, tool_velocity
 from protocol.ops import SCALAR, Mask, Ops, Real
 from protocol.scenario import Mode, Scenario
 
@@ -394,9 +394,7 @@ def step(
     reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
     plan_speed = length(ops, velocity[0], velocity[1])  # the plan's own, in the plane
     # The TCP's speed in the plane as last commanded.
-    last_speed = length(
-        ops, *tcp_velocity(law.robot, theta1, theta2, state.previous[0], state.previous[1], ops)
-    )
+    last_speed = length(ops, *tool_velocity(law.robot, trig, state.previous[0], state.previous[1]))
     squared = rate * rate
     depth_next = _depth(ops, stage.room, to_next)
     depth_before = _depth(ops, stage.room_before, to_before)

@@ -202,10 +202,18 @@ def tcp_velocity(
     arrays of a whole log (the measures of a run).
     """
     theta12 = theta1 + theta2
+    sines = ArmTrig(trig.sin(theta1), trig.cos(theta1), trig.sin(theta12), trig.cos(theta12))
+    return tool_velocity(config, sines, rate1, rate2)
+
+
+def tool_velocity(
+    config: RobotConfig, trig: ArmTrig, rate1: Values, rate2: Values
+) -> tuple[Values, Values]:
+    """:func:`tcp_velocity` from the joints' :class:`ArmTrig`, which the law has already."""
     rate12 = rate1 + rate2
     return (
-        -config.a1 * trig.sin(theta1) * rate1 - config.a2 * trig.sin(theta12) * rate12,
-        config.a1 * trig.cos(theta1) * rate1 + config.a2 * trig.cos(theta12) * rate12,
+        -config.a1 * trig.sin1 * rate1 - config.a2 * trig.sin12 * rate12,
+        config.a1 * trig.cos1 * rate1 + config.a2 * trig.cos12 * rate12,
     )
 
 
