@@ -5,9 +5,11 @@ On these shared machines wall times of the same code differ by 30 % from one run
 whatever else the machine is doing. Each count is the difference between a child that
 replays the work and one that only sets it up, divided by the work done: the instructions of
 one ``ControlLaw.step`` over the reference scenario's ticks (each mode), and of one
-``FuzzyInference.weights`` over 3000 inputs spread across its universes. ``--before REV``
-counts REV's code too, beside this tree's. Needs valgrind (Debian's ``valgrind``); about
-half a minute a count.
+``FuzzyInference.weights`` over 3000 inputs spread across its universes. The set-up (the
+reference scenario simulated) is some 3.5 billion instructions, and its count moves by a few
+million from one child to the next; the steps are replayed STEP_REPLAYS times so that this
+moves the count of one step by well under a thousand. ``--before REV`` counts REV's code
+too, beside this tree's. Needs valgrind (Debian's ``valgrind``); about a minute a count.
 
 Run from the project root: ``python benchmarks/bench_instructions.py [--before REV]``.
 """
@@ -28,6 +30,8 @@ from pathlib import Path
 from against import ROOT, tree_at
 
 FUZZY_INPUTS = 3000
+STEP_REPLAYS = 3
+"""The reference scenario's ticks stepped through this many times in the counted child."""
 
 
 def child(what: str, repeats: int) -> None:
@@ -91,7 +95,8 @@ def per_unit(tree: Path, what: str) -> float:
         from protocol.scenario import load_scenario
 
         scenario = load_scenario("reference")
-        units, repeats = round(scenario.duration / scenario.controller.period) + 1, 1
+        ticks = round(scenario.duration / scenario.controller.period) + 1
+        units, repeats = ticks * STEP_REPLAYS, STEP_REPLAYS
     return (count(tree, what, repeats) - count(tree, what, 0)) / units
 
 
