@@ -377,7 +377,10 @@ def step(
         0.5
         * (to_next + length(ops, tcp[0] - reference[0], tcp[1] - reference[1]) - reference_to_next),
     )
-    away_passed = ops.where(index - 1 <= reached, -math.inf, to_before)
+    # Away from p_j-1 in space, as its passing is judged: in the plane alone, an arm over the
+    # waypoint but above it let the plan creep on, and the height, led by the reference away
+    # from the waypoint's, never came within PASSED of it.
+    away_passed = ops.where(index - 1 <= reached, -math.inf, distance(ops, tcp, stage.point_before))
     wanted = _wanted_rate(ops, stage, progress, behind, away_passed)
     rate, rate_slope = ops.branch(
         (wanted != state.rate) | (state.rate_slope != 0.0),
@@ -602,7 +605,8 @@ def rate_towards(
 def _wanted_rate(ops: Ops, stage: Stage, progress: Real, behind: Real, away_passed: Real) -> Real:
     """How fast the plan's time should run: 1, except near an inner waypoint while the arm
     is off the way to it (:func:`_behind`'s ``behind``) or, once the waypoint's time is past,
-    away from it (``away_passed``, -inf once passed), where the plan slows down to wait.
+    away from it in space (``away_passed``, -inf once passed), where the plan slows down to
+    wait.
 
     The gate of waypoint p_j closes over the GATE_APPROACH before its time and stays closed
     after it for as long as the arm, not yet past p_j, is away from it: a waypoint is a task,

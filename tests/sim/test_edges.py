@@ -149,6 +149,23 @@ def test_an_arm_a_little_ahead_where_the_plan_turns_back_slowly_keeps_moving(mod
     assert measures.outcome == "done" and measures.stops == 0
 
 
+@pytest.mark.parametrize("mode", list(Mode))
+def test_an_arm_over_a_waypoint_but_above_it_is_waited_for_until_it_comes_down(
+    mode: Mode,
+) -> None:
+    """edge_speed seed 2, 770: the arm came onto waypoint 1 in the plane but 6 mm above it.
+    The plan, holding back only while the arm was away from the waypoint in the plane, crept
+    on; the height, led by the reference up towards the next waypoint, stayed above, and the
+    arm stood over the waypoint for 1.3 s (23 stops in each mode). The plan now waits while
+    the arm is away from the waypoint in space, as its passing is judged."""
+    task = generate_scenario_at(2, 770, family=Family.EDGE_SPEED)
+    check_task(task)
+    first = task.waypoints[1]
+    assert first.z < task.waypoints[2].z - 0.05  # the way on climbs
+    measures = simulate(task, mode).measures
+    assert measures.outcome == "done" and measures.stops == 0
+
+
 @pytest.mark.parametrize("index", [772, 895, 898])
 def test_where_the_plan_moves_off_after_a_wait_the_fuzzy_arm_is_still_the_smoother(
     index: int,

@@ -102,7 +102,7 @@ PINNED = {
     "random-11-1/conventional": "d99b9383a3dbf482",
     "random-11-2/fuzzy": "5d1df28ef8465adf",
     "random-11-2/conventional": "5d1df28ef8465adf",
-    "random-11-3/fuzzy": "605d6eb7421dd1ac",
+    "random-11-3/fuzzy": "2af94af2f548ac4f",
     "random-11-3/conventional": "e4143b8851fda6ae",
     "random-11-4/fuzzy": "673c36643d54c98f",
     "random-11-4/conventional": "673c36643d54c98f",
