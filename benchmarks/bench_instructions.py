@@ -7,9 +7,11 @@ replays the work and one that only sets it up, divided by the work done: the ins
 one ``ControlLaw.step`` over the reference scenario's ticks (each mode), and of one
 ``FuzzyInference.weights`` over 3000 inputs spread across its universes. The set-up (the
 reference scenario simulated) is some 3.5 billion instructions, and its count moves by a few
-million from one child to the next; the steps are replayed STEP_REPLAYS times so that this
-moves the count of one step by well under a thousand. ``--before REV`` counts REV's code
-too, beside this tree's. Needs valgrind (Debian's ``valgrind``); about a minute a count.
+million from one child to the next; the steps are replayed STEP_REPLAYS times, which divides
+what that does to one step's count by as much. The counts of one tree still move by some
+2,500 instructions a step (0.6 %) from one run to the next: compare the ratios of several
+runs. ``--before REV`` counts REV's code too, beside this tree's. Needs valgrind (Debian's
+``valgrind``); about a minute a count.
 
 Run from the project root: ``python benchmarks/bench_instructions.py [--before REV]``.
 """
