@@ -36,7 +36,14 @@ from controller.planner import Trajectory, cubic, plan_of
 from controller.safety import Limits, barrier, box, filtered, limits_of
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.geometry import EllipticCylinder, Section, distance, length, wrap_angle
-from protocol.kinematics import arm_trig, joint_rates, reach_radii, tool_position, tool_velocity
+from protocol.kinematics import (
+    ArmTrig,
+    arm_trig,
+    joint_rates,
+    reach_radii,
+    tool_position,
+    tool_velocity,
+)
 from protocol.ops import SCALAR, Mask, Ops, Real
 from protocol.scenario import Mode, Scenario
 
@@ -380,7 +387,7 @@ def step(
     # Away from p_j-1 in space, as its passing is judged: in the plane alone, an arm over the
     # waypoint but above it let the plan creep on, and the height, led by the reference away
     # from the waypoint's, never came within PASSED of it.
-    away_passed = ops.where(index - 1 <= reached, -math.inf, distance(ops, tcp, stage.point_before))
+    away_passed = ops.branch(index - 1 > reached, distance, -math.inf, ops, tcp, stage.point_before)
     wanted = _wanted_rate(ops, stage, progress, behind, away_passed)
     rate, rate_slope = ops.branch(
         (wanted != state.rate) | (state.rate_slope != 0.0),
@@ -396,8 +403,6 @@ def step(
     # it the turn rate PT feeds forward, stay those of the plan.
     reference_velocity = (rate * velocity[0], rate * velocity[1], rate * velocity[2])
     plan_speed = length(ops, velocity[0], velocity[1])  # the plan's own, in the plane
-    # The TCP's speed in the plane as last commanded.
-    last_speed = length(ops, *tool_velocity(law.robot, trig, state.previous[0], state.previous[1]))
     squared = rate * rate
     depth_next = _depth(ops, stage.room, to_next)
     depth_before = _depth(ops, stage.room_before, to_before)
@@ -423,6 +428,14 @@ def step(
     min_distance = ops.min(measurement.d_left, measurement.d_right)
 
     passed_next = index <= reached
+    past_waypoint: tuple[Real, Real] = (0.0, 0.0)
+    last_speed: Real = 0.0  # the TCP's speed in the plane as last commanded, where needed
+    if ops.any(passed_next):
+        last_speed = _last_speed(ops, law.robot, trig, state.previous)
+        past_waypoint = (
+            ops.where(passed_next, plan_speed, 0.0),
+            ops.where(passed_next, ops.min(last_speed, plan_speed), 0.0),
+        )
     tracking = plan_tracking(
         ops,
         config,
@@ -432,10 +445,7 @@ def step(
         (reference_velocity[0], reference_velocity[1]),
         (squared * acceleration[0], squared * acceleration[1]),
         (stage.point[0], stage.point[1], stage.rests),
-        (
-            ops.where(passed_next, plan_speed, 0.0),
-            ops.where(passed_next, ops.min(last_speed, plan_speed), 0.0),
-        ),
+        past_waypoint,
     )
     avoiding, side = avoid_obstacle(
         ops,
@@ -478,6 +488,8 @@ def step(
     # moves on (where the plan turns back at a waypoint, or the hard switch hands an arm back).
     backward = (k_c == 0.0) & (tracking.v == 0.0) & (tracking.speed > BACKWARD_SPEED)
     if ops.any(backward):
+        if not ops.any(passed_next):
+            last_speed = _last_speed(ops, law.robot, trig, state.previous)
         backward = backward & (last_speed < PLANNED_REST_SPEED)
         reversed_command = backward_tracking(ops, config, tracking)
         blended = Command(
@@ -595,11 +607,16 @@ def rate_towards(
     half = 0.5 * step
     braking = ops.min(steepest, ops.sqrt(half * half + 2.0 * bend * ops.max(gap, 0.0)) - half)
     upward = ops.max(slope, 0.0)  # a rate falling stops falling at once, as it began
-    rising = ops.min(ops.max(braking, upward - step), upward + step)
+    rising = ops.clip(braking, upward - step, upward + step)
     slope = ops.where(gap > 0.0, rising, ops.max(gap / period, -steepest))
     moved = rate + slope * period
     landed = (moved - wanted) * gap >= 0.0
     return ops.where(landed, wanted, moved), ops.where(landed, gap / period, slope)
+
+
+def _last_speed(ops: Ops, robot: RobotConfig, trig: ArmTrig, previous: Point3) -> Real:
+    """The TCP's speed in the plane at the joint rates last commanded, ``previous``."""
+    return length(ops, *tool_velocity(robot, trig, previous[0], previous[1]))
 
 
 def _wanted_rate(ops: Ops, stage: Stage, progress: Real, behind: Real, away_passed: Real) -> Real:

@@ -128,5 +128,5 @@ def _fuzzy_weights(
 
 def smoothstep(ops: Ops, x: Real) -> Real:
     """0 below 0, 1 above 1, and 3x^2 - 2x^3 between: a ramp with flat ends."""
-    x = ops.min(ops.max(x, 0.0), 1.0)
+    x = ops.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)

@@ -190,9 +190,9 @@ class FuzzyInference:
 def infer(ops: Ops, inference: FuzzyInference, min_distance: Real, beta: Real) -> tuple[Real, Real]:
     """k_T and k_C of ``inference``'s rule base for the inputs (clamped to their universes)."""
     low, high = inference.distance_range
-    min_distance = ops.min(ops.max(min_distance, low), high)
+    min_distance = ops.clip(min_distance, low, high)
     low, high = inference.beta_range
-    beta = ops.min(ops.max(beta, low), high)
+    beta = ops.clip(beta, low, high)
     mu_distance = memberships(ops, min_distance, inference.distance_terms)
     mu_beta = memberships(ops, beta, inference.beta_terms)
     fired_t: list[Real] = [0.0, 0.0, 0.0]

@@ -188,7 +188,7 @@ def _sense_present(
         gx = ops.where(on_goal, section.x - px, gx)
         gy = ops.where(on_goal, section.y - py, gy)
         goal_distance = ops.where(on_goal, ops.max(length(ops, gx, gy), 1e-9), goal_distance)
-    near = ops.min(ops.max(clearance, 0.0), sensing_range)
+    near = ops.clip(clearance, 0.0, sensing_range)
     crosses, entry, exit_ = line_crossings(ops, section, lx, ly, px + gx, py + gy)
     other = ops.min(ops.min(abs(entry), abs(exit_)) * goal_distance, sensing_range)
     other = ops.where(crosses, ops.max(other, near), sensing_range)
@@ -240,7 +240,7 @@ def _way_passing(ops: Ops, tangent: Real, goal_distance: Real, beta: Real) -> Re
     tangent ``tangent`` long) comes to the tangent point: the ray's distance from it, or the
     goal's where the way ends before the ray's nearest point. Measured on the ray alone, it
     fell fast as a near goal's direction turned, and k_C pulsed."""
-    angle = ops.min(ops.max(beta, 0.0), math.pi / 2.0)
+    angle = ops.clip(beta, 0.0, math.pi / 2.0)
     cos = ops.cos(angle)
     to_end = tangent * tangent + goal_distance * goal_distance - 2.0 * tangent * goal_distance * cos
     return ops.where(

@@ -129,7 +129,7 @@ def box(ops: Ops, limits: Limits, joints: Point3, previous: Point3) -> Box:
         high_stop = ops.branch(
             high_way < far, approach_speed, speed, ops, high_way, rate, decel, lag
         )
-        low.append(ops.min(ops.max(low_dynamic, low_stop), high_dynamic))
+        low.append(ops.clip(low_dynamic, low_stop, high_dynamic))
         high.append(ops.max(ops.min(high_dynamic, high_stop), low_dynamic))
     return Box((low[0], low[1], low[2]), (high[0], high[1], high[2]))
 
@@ -245,9 +245,9 @@ def filtered(ops: Ops, wanted: Point3, allowed: Box, constraint: Barrier) -> Fil
     box's best for the barrier where none does (module docstring)."""
     low, high = allowed
     u = (
-        ops.min(ops.max(wanted[0], low[0]), high[0]),
-        ops.min(ops.max(wanted[1], low[1]), high[1]),
-        ops.min(ops.max(wanted[2], low[2]), high[2]),
+        ops.clip(wanted[0], low[0], high[0]),
+        ops.clip(wanted[1], low[1], high[1]),
+        ops.clip(wanted[2], low[2], high[2]),
     )
     a = constraint.a
     need = constraint.b - (a[0] * u[0] + a[1] * u[1] + a[2] * u[2])

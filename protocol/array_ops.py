@@ -21,6 +21,7 @@ __all__ = [
     "any",
     "atan2",
     "branch",
+    "clip",
     "converge",
     "copysign",
     "cos",
@@ -52,6 +53,11 @@ def min(a: Any, b: Any) -> Any:
 def max(a: Any, b: Any) -> Any:
     """Python's ``max(a, b)`` elementwise: ``a`` on a tie."""
     return np.maximum(b, a)
+
+
+def clip(x: Any, low: Any, high: Any) -> Any:
+    """``min(max(x, low), high)`` elementwise, ties as those give them."""
+    return np.minimum(high, np.maximum(low, x))
 
 
 def not_(condition: Any) -> Any:

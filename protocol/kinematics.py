@@ -159,7 +159,7 @@ def reaches(
     a1, a2 = config.a1, config.a2
     c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2.0 * a1 * a2)
     inside = abs(c2) < 1.0 - cos_margin
-    c2 = ops.min(ops.max(c2, -1.0), 1.0)
+    c2 = ops.clip(c2, -1.0, 1.0)
     s2 = elbow * ops.sqrt((1.0 - c2) * (1.0 + c2))
     theta2 = ops.atan2(s2, c2)
     theta1 = ops.atan2(y, x) - ops.atan2(a2 * s2, a1 + a2 * c2)

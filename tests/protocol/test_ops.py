@@ -1,7 +1,7 @@
 """The two sets of operations the law is written over give the same bits: numpy's against
-:mod:`math`, the wire, ties of min and max, row subsets and the per-run iteration; and the
-law's formulas themselves, run on many random inputs at once and one by one (to 1e-9 where
-numpy's atan2, acos or exp are an ulp off libm's: on a CPU with AVX-512)."""
+:mod:`math`, the wire, ties of min, max and clip, row subsets and the per-run iteration; and
+the law's formulas themselves, run on many random inputs at once and one by one (to 1e-9
+where numpy's atan2, acos or exp are an ulp off libm's: on a CPU with AVX-512)."""
 
 from __future__ import annotations
 
@@ -82,6 +82,32 @@ def test_ties_of_min_and_max_go_to_the_first_argument_as_in_python() -> None:
         assert not np.signbit(ARRAY.min(first, second)).any()  # min(0.0, -0.0) is 0.0
         assert np.signbit(ARRAY.max(second, first)).all()  # max(-0.0, 0.0) is -0.0
     assert math.copysign(1.0, SCALAR.min(0.0, -0.0)) > 0 > math.copysign(1.0, SCALAR.max(-0.0, 0.0))
+
+
+def test_a_clip_is_max_then_min_to_the_bit_ties_and_nan_included() -> None:
+    # (x, low, high): inside, on each bound with either zero's sign, outside, NaN, and
+    # bounds the wrong way round (the last word is min's, as in min(max(x, low), high)).
+    cases = [
+        (0.5, 0.0, 1.0),
+        (-0.0, 0.0, 1.0),
+        (0.0, -0.0, 1.0),
+        (1.0, 0.0, 1.0),
+        (-0.5, -0.0, 1.0),
+        (2.0, 0.0, 1.0),
+        (-0.0, -1.0, 0.0),
+        (0.0, -1.0, -0.0),
+        (math.nan, 0.0, 1.0),
+        (-math.inf, 0.0, 1.0),
+        (0.5, 1.0, 0.0),
+    ]
+    for ops in (SCALAR, ARRAY):
+        for x, low, high in cases:
+            if ops is ARRAY:
+                x, low, high = np.array([x]), np.array([low]), np.array([high])
+            clipped, composed = ops.clip(x, low, high), ops.min(ops.max(x, low), high)
+            pair = np.array([clipped, composed], dtype=np.float64).ravel()
+            assert np.array_equal(np.signbit(pair[:1]), np.signbit(pair[1:])), (x, low, high)
+            assert np.array_equal(pair[:1], pair[1:], equal_nan=True), (x, low, high)
 
 
 def test_a_branch_computes_only_the_runs_that_take_it() -> None:
