@@ -21,6 +21,7 @@ from controller.control_law import (
     PASSED,
     RATE_CHANGE,
     RATE_RAMP,
+    TURN_SHARE,
     WAITING_RATE,
     WAITING_REACH,
     ControlLaw,
@@ -30,6 +31,7 @@ from controller.control_law import (
     height_lead,
     rate_towards,
     reach_limited,
+    turned_towards,
 )
 from controller.coordination import HEIGHT_FADE, WAY_PASSING_FULL, Coordination, weights
 from controller.fuzzy import RuleBase
@@ -549,6 +551,32 @@ def test_the_handover_to_the_loop_turns_the_way_and_keeps_the_speed() -> None:
         shares.append(share)
         assert math.hypot(vx, vy) == pytest.approx(CONFIG.position_gain * away)
     assert shares[0] == 0.0 and shares[-1] == 1.0 and 0.0 < shares[5] < 1.0
+
+
+def test_the_final_approach_taking_over_from_a_way_pointing_back_turns_it_and_keeps_speed() -> None:
+    """An arm that went by a waypoint a few millimetres beside it: PT's way on and the final
+    approach's way back point apart, and added as vectors they all but cancelled halfway (1
+    of 66 mm/s, a stop: edge_reach seed 2, 38). There the way now turns, for TURN_SHARE of it;
+    within 90 degrees the two are still added, to the bit."""
+    on, back = (0.066, 0.0), (-0.04, -0.004)
+    added = (0.5 * (on[0] + back[0]), 0.5 * (on[1] + back[1]))
+    vx, vy = turned_towards(SCALAR, on, back, 0.5)
+    mean_speed = 0.5 * (math.hypot(*on) + math.hypot(*back))
+    assert math.hypot(*added) < TURN_SHARE * mean_speed <= math.hypot(vx, vy)
+    assert vy < added[1] - 0.5 * TURN_SHARE * mean_speed  # turned the short way round
+    for share in (0.0, 1.0):  # each end is itself
+        assert turned_towards(SCALAR, on, back, share) == pytest.approx(
+            on if share == 0.0 else back, abs=1e-15
+        )
+    # Within 90 degrees, and where either is nothing: added.
+    assert turned_towards(SCALAR, (0.05, 0.0), (0.0001, 0.03), 0.3) == (
+        0.05 + 0.3 * (0.0001 - 0.05),
+        0.0 + 0.3 * (0.03 - 0.0),
+    )
+    assert turned_towards(SCALAR, (0.0, 0.0), (-0.02, 0.01), 0.25) == (
+        0.0 + 0.25 * (-0.02 - 0.0),
+        0.0 + 0.25 * (0.01 - 0.0),
+    )
 
 
 def test_an_arm_short_of_the_waypoint_is_brought_straight_onto_it() -> None:

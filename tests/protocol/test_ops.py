@@ -14,6 +14,7 @@ import pytest
 from support import NOT_LIBM_TOLERANCE, NUMPY_IS_LIBM
 
 from controller.behaviours import Tracking, backward_tracking, plan_tracking
+from controller.control_law import turned_towards
 from controller.fuzzy import FuzzyInference, RuleBase, infer
 from controller.obstacle import NO_OBSTACLE, measure, sense
 from plant_sim.model import integrate
@@ -296,6 +297,19 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
     for index in range(count):
         one = backward_tracking(SCALAR, config, Tracking(*_at(tracking, index)))
         assert_same(_at(tuple(backward), index), tuple(one), index)
+    # The final approach taking over (turned where the two ways point apart); some nothing.
+    approach = rng.uniform(-0.2, 0.2, (2, count))
+    approach[:, :20] = 0.0
+    share = rng.uniform(0.0, 1.0, count)
+    taken_over = turned_towards(ARRAY, tuple(velocity), tuple(approach), share)
+    for index in range(count):
+        one = turned_towards(
+            SCALAR,
+            tuple(velocity[:, index].tolist()),
+            tuple(approach[:, index].tolist()),
+            float(share[index]),
+        )
+        assert_same(_at(taken_over, index), one, index)
 
     robot = RobotConfig()
     joint = rng.uniform(robot.joint_min[0], robot.joint_max[0], count)
