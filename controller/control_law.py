@@ -110,7 +110,8 @@ TURN_SHARE = 0.3
 """How far, there, the velocity goes from the two added as vectors to the way turned at a
 speed between theirs. Added, they all but cancelled: an arm that had gone by a waypoint a few
 millimetres beside it, pulled back, stood (`edge_reach` seed 2, 38). Turned in full, it
-swung round at speed, and jerked more than the hard switch (`fast` 461: 806 m/s^3)."""
+swung round at speed, and jerked more than the hard switch (`fast` 461: 806 against 644
+m/s^3)."""
 NEAR_STOP = math.radians(5.0)
 """rad: a revolute joint this near its stop has AO check that its way round is still open."""
 WAITING_RATE = 0.5
