@@ -13,7 +13,7 @@ import math
 from typing import NamedTuple
 
 from controller.coordination import AHEAD_NONE
-from controller.detour import passable
+from controller.detour import passable, straight_passable
 from controller.obstacle import ObstacleMeasurement
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.geometry import Section, length, nearest_point, tangent_points, to_local, wrap_angle
@@ -161,6 +161,7 @@ def avoid_obstacle(
     config: ControllerConfig,
     robot: RobotConfig,
     aim: Section,
+    obstacle: Section,
     measurement: ObstacleMeasurement,
     min_distance: Real,
     side: Real,
@@ -175,9 +176,10 @@ def avoid_obstacle(
     AO acts while the obstacle is present and ahead, or the TCP moves towards it (or is
     inside it); it chooses its side when it starts to act, away from the side the obstacle is
     nearer on unless the joint limits close that way round to ``goal`` and leave the other
-    open (:mod:`controller.detour`; ``elbow``: the sign of theta2), keeps it while it acts
-    unless that way closes (checked while ``near_stop``: a joint near its stop), and forgets
-    it when it stops.
+    open (:mod:`controller.detour`; ``elbow``: the sign of theta2; ``obstacle``, the inflated
+    one, where the straight way keeps clear of it: :func:`_side_the_joints_take`), keeps it
+    while it acts unless that way closes (checked while ``near_stop``: a joint near its
+    stop), and forgets it when it stops.
     """
     engaged = measurement.present & ops.not_(
         (ops.max(measurement.ahead, measurement.toward) <= AHEAD_NONE)
@@ -187,18 +189,20 @@ def avoid_obstacle(
     chosen = ops.where(measurement.d_left >= measurement.d_right, TURN_LEFT, TURN_RIGHT)
     side = ops.where(engaged, ops.where(fresh, chosen, side), 0)
     # The side is checked when it is chosen, and again while a joint is near its stop (where
-    # a way round closes), if the way to the goal is blocked.
+    # a way round closes) if the way to the goal is blocked.
     side = ops.branch(
-        engaged & (fresh | near_stop) & measurement.blocked,
+        engaged & (fresh | near_stop & measurement.blocked),
         _side_the_joints_take,
         side,
         ops,
         robot,
         aim,
+        obstacle,
         position,
         goal,
         side,
         elbow,
+        measurement.blocked,
     )
     command = ops.branch(
         engaged,
@@ -219,17 +223,53 @@ def _side_the_joints_take(
     ops: Ops,
     robot: RobotConfig,
     aim: Section,
+    obstacle: Section,
     position: tuple[Real, Real],
     goal: tuple[Real, Real],
     preferred: Real,
     elbow: Real,
+    blocked: Mask,
 ) -> Real:
-    """``preferred``, unless its way round ``aim`` is closed and the other one open."""
-    closed = ops.not_(passable(ops, robot, aim, position, goal, preferred, elbow))
+    """``preferred``, unless its way round is closed and the other one open.
+
+    Where the straight way to ``goal`` is ``blocked``, the way round ``aim`` (AO's). Where
+    it keeps clear of the obstacle but runs out of the joint limits (through the hole inside
+    the inner reach), the arm follows a plan that bends round past the obstacle's end, within
+    AO's margin: there a way is closed only where it is closed round ``obstacle`` (the
+    inflated one) itself. AO, choosing there by d_L and d_R alone, took an arm round the end
+    where the obstacle meets the inner reach, and it stood at theta2's stop, 1 mm from it.
+    """
+    bent: Mask = False
+    if ops.any(ops.not_(blocked)):
+        straight = straight_passable(ops, robot, position, goal, elbow)
+        bent = ops.not_(blocked) & ops.not_(straight)
+    sections = ((blocked, aim), (bent, obstacle))
+    closed = (blocked | bent) & ops.not_(
+        _way_open(ops, robot, sections, position, goal, preferred, elbow)
+    )
     if not ops.any(closed):
         return preferred
-    other_open = passable(ops, robot, aim, position, goal, -preferred, elbow)
+    other_open = _way_open(ops, robot, sections, position, goal, -preferred, elbow)
     return ops.where(closed & other_open, -preferred, preferred)
+
+
+def _way_open(
+    ops: Ops,
+    robot: RobotConfig,
+    sections: tuple[tuple[Mask, Section], ...],
+    position: tuple[Real, Real],
+    goal: tuple[Real, Real],
+    side: Real,
+    elbow: Real,
+) -> Mask:
+    """Whether the way round on ``side`` is passable, round each section where its mask is
+    set."""
+    open_: Mask = True
+    for where, section in sections:
+        if ops.any(where):
+            way = passable(ops, robot, section, position, goal, side, elbow)
+            open_ = ops.where(where, way, open_)
+    return open_
 
 
 def _avoid(

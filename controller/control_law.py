@@ -462,6 +462,7 @@ def step(
         config,
         law.robot,
         stage.aim,
+        law.obstacle,
         measurement,
         min_distance,
         side,

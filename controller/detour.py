@@ -7,9 +7,12 @@ follow that way, the joint limits decide, not the distances d_L and d_R: near th
 reach limit the side nearer the base runs through where theta2 would have to pass its stop.
 :func:`passable` checks points along a side's way (:func:`protocol.kinematics.reaches`,
 LIMIT_ROOM inside the limits), on floats for the controller and on arrays for the study;
-AO takes the other side where its own is closed (``behaviours.avoid_obstacle``), and the
-plan check refuses a task with a segment that neither side can take round
-(:func:`ways_round`).
+AO takes the other side where its own is closed (``behaviours.avoid_obstacle``), also where
+the straight way to the waypoint keeps clear of the obstacle but runs out of the limits
+(:func:`straight_passable`: through the hole inside the inner reach, where the plan bends
+round past the obstacle; there the way is judged round the inflated obstacle, without AO's
+margin, which the plan passes within), and the plan check refuses a task with a segment
+that neither side can take round (:func:`ways_round`).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ ARC_POINTS = 24
 LEG_POINTS = (0.25, 0.5, 0.75)
 """Where on each straight leg (TCP to the boundary, the boundary to the waypoint) a point is
 checked."""
+STRAIGHT_POINTS = 16
+"""Points a straight move is cut into to check it (:func:`straight_passable`)."""
 LIMIT_ROOM = math.radians(0.5)
 """rad: how far inside every joint limit the way must stay (about 2.5 mm of radius at the
 inner reach limit): the arm may pass up to the pass margin inside the boundary checked, and
@@ -72,6 +77,24 @@ def passable(
             x = from_x + share * (edge_x - from_x)
             y = from_y + share * (edge_y - from_y)
             ok = ok & reaches(ops, robot, x, y, elbow, LIMIT_ROOM)
+    return ok
+
+
+def straight_passable(
+    ops: Ops,
+    robot: RobotConfig,
+    start: tuple[Real, Real],
+    goal: tuple[Real, Real],
+    elbow: Real,
+) -> Mask:
+    """Whether the straight move from ``start`` to ``goal`` stays within the joint limits
+    (LIMIT_ROOM inside them) at STRAIGHT_POINTS - 1 points between the two."""
+    ok: Mask = True
+    for k in range(1, STRAIGHT_POINTS):
+        share = k / STRAIGHT_POINTS
+        x = start[0] + share * (goal[0] - start[0])
+        y = start[1] + share * (goal[1] - start[1])
+        ok = ok & reaches(ops, robot, x, y, elbow, LIMIT_ROOM)
     return ok
 
 

@@ -39,6 +39,7 @@ from controller.obstacle import ObstacleMeasurement, measure
 from protocol.config import ControllerConfig, RobotConfig
 from protocol.errors import ConfigError
 from protocol.geometry import EllipticCylinder, wrap_angle
+from protocol.kinematics import reach_radii
 from protocol.ops import SCALAR
 from protocol.scenario import Mode, Scenario, Waypoint, load_scenario
 from sim.generator import generate_scenario_at
@@ -254,6 +255,7 @@ def test_avoiding_turns_to_the_chosen_side_and_settles_on_the_edge(side: int) ->
             CONFIG,
             RobotConfig(),
             aim.section(),
+            obstacle.section(),
             measurement,
             measurement.min_distance,
             side,
@@ -276,6 +278,78 @@ def test_avoiding_turns_to_the_chosen_side_and_settles_on_the_edge(side: int) ->
     at_edge = math.atan2(edge[1] - tcp[1], edge[0] - tcp[0])
     settled = avoiding(at_edge)
     assert settled.omega == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("goal", "side"),
+    [((0.379, -0.059), TURN_LEFT), ((0.0, 0.2), TURN_RIGHT)],
+)
+def test_where_the_straight_way_runs_through_the_inner_hole_avoiding_takes_the_open_side(
+    goal: tuple[float, float], side: int
+) -> None:
+    """An obstacle 40 cm long reaching in from past the arm's middle to near the inner reach
+    (wide seed 2, 73): the straight way from the TCP to (0.379, -0.059) keeps clear of it
+    through the hole inside the inner reach, where the arm cannot go, and the plan bends
+    round past the obstacle. d_R a little over d_L chose the right, towards the inner reach,
+    and the arm stood at theta2's stop; the joints now choose the left. To (0.0, 0.2) the
+    straight way is open and d_L and d_R choose, as before."""
+    obstacle = EllipticCylinder(0.036, 0.37, 0.375, 0.159, 0.41, yaw=1.8, inflation=0.02)
+    tcp = (-0.263, 0.35, 0.215)
+    measurement = measure(obstacle, tcp, goal, CONFIG.sensing_range)
+    assert not measurement.blocked
+    assert measurement.d_right > measurement.d_left
+    heading = math.atan2(goal[1] - tcp[1], goal[0] - tcp[0])
+    for near_stop in (False, True):
+        _, chosen = avoid_obstacle(
+            SCALAR,
+            CONFIG,
+            RobotConfig(),
+            obstacle.grown(CONFIG.ao_pass_margin).section(),
+            obstacle.section(),
+            measurement,
+            measurement.min_distance,
+            0,
+            heading,
+            tcp[:2],
+            goal,
+            1.0,
+            near_stop,
+        )
+        assert chosen == side
+
+
+@pytest.mark.parametrize(("gap", "side"), [(0.0065, TURN_LEFT), (0.0055, TURN_RIGHT)])
+def test_past_an_obstacle_by_the_inner_hole_the_side_is_judged_round_the_obstacle_itself(
+    gap: float, side: int
+) -> None:
+    """A move whose straight way runs through the hole inside the inner reach, past an
+    obstacle whose inflated edge is ``gap`` outside the inner reach: d_L and d_R choose the
+    left, between the obstacle and the base. The plan passes within AO's margin there, so the
+    way is judged round the inflated obstacle, not AO's aim (which closes it at any gap
+    below the margin): open from about 5.9 mm (LIMIT_ROOM, and the legs' and the arc's
+    points), kept; closed below, and AO goes round the far end."""
+    inner, _ = reach_radii(RobotConfig())
+    obstacle = EllipticCylinder(inner + gap + 0.02 + 0.05, 0.0, 0.1, 0.06, 0.3, 0.0, 0.02)
+    tcp, goal = (0.17, -0.12, 0.2), (0.17, 0.12)
+    measurement = measure(obstacle, tcp, goal, CONFIG.sensing_range)
+    assert not measurement.blocked
+    assert measurement.d_left > measurement.d_right
+    _, chosen = avoid_obstacle(
+        SCALAR,
+        CONFIG,
+        RobotConfig(),
+        obstacle.grown(CONFIG.ao_pass_margin).section(),
+        obstacle.section(),
+        measurement,
+        measurement.min_distance,
+        0,
+        math.pi / 2.0,
+        tcp[:2],
+        goal,
+        1.0,
+        False,
+    )
+    assert chosen == side
 
 
 def test_conventional_switch_is_all_or_nothing() -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller.detour import passable, ways_round
+from controller.detour import LIMIT_ROOM, passable, straight_passable, ways_round
 from controller.planner import check_plan
 from protocol.config import RobotConfig
 from protocol.errors import NoWayRoundError
@@ -36,6 +36,21 @@ def test_a_move_that_passes_the_obstacle_or_goes_over_it_needs_no_way_round() ->
     assert ways_round(ROBOT, obstacle, (0.3, -0.15, 0.2), (0.3, 0.15, 0.2), Elbow.DOWN) is None
     high = obstacle.section().top + 0.01
     assert ways_round(ROBOT, obstacle, (0.42, -0.15, high), (0.42, 0.15, high), Elbow.DOWN) is None
+
+
+@pytest.mark.parametrize(("past_the_hole", "passes"), [(0.0005, True), (-0.0005, False)])
+def test_a_straight_move_through_the_hole_inside_the_inner_reach_is_out_of_the_limits(
+    past_the_hole: float, passes: bool
+) -> None:
+    """A move along x = const at ``past_the_hole`` beyond the circle where theta2, LIMIT_ROOM
+    inside its stop, holds the arm (just outside it: passable; just inside: not)."""
+    inner, _ = reach_radii(
+        RobotConfig(
+            theta2_min=ROBOT.theta2_min + LIMIT_ROOM, theta2_max=ROBOT.theta2_max - LIMIT_ROOM
+        )
+    )
+    x = inner + past_the_hole
+    assert bool(straight_passable(SCALAR, ROBOT, (x, -0.3), (x, 0.3), 1.0)) is passes
 
 
 def test_next_to_the_inner_reach_limit_only_the_outer_way_is_open() -> None:

@@ -185,6 +185,22 @@ def test_an_arm_that_went_by_a_waypoint_beside_it_is_brought_back_without_standi
     assert fuzzy.peak_jerk < conventional.peak_jerk
 
 
+def test_a_plan_bending_round_an_obstacle_the_straight_way_keeps_clear_of_is_done() -> None:
+    """Wide seed 2, 73: from the second waypoint to the third the straight way runs through
+    the hole inside the inner reach, clear of the obstacle; the plan bends out through the
+    obstacle's inner end. AO went round that end, towards the inner reach, and the arm stood
+    at theta2's stop 1 mm from the obstacle until no progress ended the run (both modes); AO
+    now takes the side whose way stays within the limits, round the outer end."""
+    task = generate_scenario_at(2, 73, family=Family.WIDE)
+    check_task(task)
+    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
+    assert fuzzy.outcome == conventional.outcome == "done"
+    assert fuzzy.stops == conventional.stops == 0
+    assert fuzzy.max_waypoint_miss < WAYPOINT_TOLERANCE
+    assert conventional.max_waypoint_miss < WAYPOINT_TOLERANCE
+    assert fuzzy.peak_jerk < conventional.peak_jerk
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.FAST, 461), (Family.EDGE_SPEED, 633)])
 def test_an_arm_pulled_back_to_a_waypoint_it_went_by_swings_round_no_harder_than_the_switch(
     family: Family, index: int
