@@ -300,22 +300,7 @@ def test_where_the_straight_way_runs_through_the_inner_hole_avoiding_takes_the_o
     assert measurement.d_right > measurement.d_left
     heading = math.atan2(goal[1] - tcp[1], goal[0] - tcp[0])
     for near_stop in (False, True):
-        _, chosen = avoid_obstacle(
-            SCALAR,
-            CONFIG,
-            RobotConfig(),
-            obstacle.grown(CONFIG.ao_pass_margin).section(),
-            obstacle.section(),
-            measurement,
-            measurement.min_distance,
-            0,
-            heading,
-            tcp[:2],
-            goal,
-            1.0,
-            near_stop,
-        )
-        assert chosen == side
+        assert _side_chosen(obstacle, measurement, heading, tcp, goal, near_stop) == side
 
 
 @pytest.mark.parametrize(("gap", "side"), [(0.0065, TURN_LEFT), (0.0055, TURN_RIGHT)])
@@ -334,6 +319,19 @@ def test_past_an_obstacle_by_the_inner_hole_the_side_is_judged_round_the_obstacl
     measurement = measure(obstacle, tcp, goal, CONFIG.sensing_range)
     assert not measurement.blocked
     assert measurement.d_left > measurement.d_right
+    assert _side_chosen(obstacle, measurement, math.pi / 2.0, tcp, goal, False) == side
+
+
+def _side_chosen(
+    obstacle: EllipticCylinder,
+    measurement: ObstacleMeasurement,
+    heading: float,
+    tcp: tuple[float, float, float],
+    goal: tuple[float, float],
+    near_stop: bool,
+) -> float:
+    """The side AO chooses afresh, its elbow down, round ``obstacle`` grown by the pass
+    margin."""
     _, chosen = avoid_obstacle(
         SCALAR,
         CONFIG,
@@ -343,13 +341,13 @@ def test_past_an_obstacle_by_the_inner_hole_the_side_is_judged_round_the_obstacl
         measurement,
         measurement.min_distance,
         0,
-        math.pi / 2.0,
+        heading,
         tcp[:2],
         goal,
         1.0,
-        False,
+        near_stop,
     )
-    assert chosen == side
+    return chosen
 
 
 def test_conventional_switch_is_all_or_nothing() -> None:
