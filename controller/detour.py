@@ -18,6 +18,7 @@ that neither side can take round (:func:`ways_round`).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from protocol.config import RobotConfig
 from protocol.geometry import EllipticCylinder, Section, line_crossings, to_local, to_world
@@ -71,12 +72,9 @@ def passable(
         angle = leave - side * span * (k / (ARC_POINTS - 1))
         x, y = to_world(section, section.a * ops.cos(angle), section.b * ops.sin(angle))
         ok = ok & reaches(ops, robot, x, y, elbow, LIMIT_ROOM)
-    for (from_x, from_y), angle in ((start, leave), (goal, arrive)):
-        edge_x, edge_y = to_world(section, section.a * ops.cos(angle), section.b * ops.sin(angle))
-        for share in LEG_POINTS:
-            x = from_x + share * (edge_x - from_x)
-            y = from_y + share * (edge_y - from_y)
-            ok = ok & reaches(ops, robot, x, y, elbow, LIMIT_ROOM)
+    for end, angle in ((start, leave), (goal, arrive)):
+        edge = to_world(section, section.a * ops.cos(angle), section.b * ops.sin(angle))
+        ok = ok & _reaches_along(ops, robot, end, edge, LEG_POINTS, elbow)
     return ok
 
 
@@ -89,11 +87,24 @@ def straight_passable(
 ) -> Mask:
     """Whether the straight move from ``start`` to ``goal`` stays within the joint limits
     (LIMIT_ROOM inside them) at STRAIGHT_POINTS - 1 points between the two."""
+    shares = [k / STRAIGHT_POINTS for k in range(1, STRAIGHT_POINTS)]
+    return _reaches_along(ops, robot, start, goal, shares, elbow)
+
+
+def _reaches_along(
+    ops: Ops,
+    robot: RobotConfig,
+    start: tuple[Real, Real],
+    end: tuple[Real, Real],
+    shares: Sequence[float],
+    elbow: Real,
+) -> Mask:
+    """Whether the points at ``shares`` of the way from ``start`` to ``end`` are reached
+    LIMIT_ROOM inside the joint limits."""
     ok: Mask = True
-    for k in range(1, STRAIGHT_POINTS):
-        share = k / STRAIGHT_POINTS
-        x = start[0] + share * (goal[0] - start[0])
-        y = start[1] + share * (goal[1] - start[1])
+    for share in shares:
+        x = start[0] + share * (end[0] - start[0])
+        y = start[1] + share * (end[1] - start[1])
         ok = ok & reaches(ops, robot, x, y, elbow, LIMIT_ROOM)
     return ok
 
