@@ -118,9 +118,9 @@ WAITING_RATE = 0.5
 """The plan's rate below which it all but waits for the arm (:func:`approach_pull`)."""
 WAITING_REACH = (0.01, 0.02)
 """m: the final approach takes over wherever the straight way is clear (:func:`approach_pull`)
-for an arm within the first of these of the waypoint the plan all but waits for, fading out
-to the second. From farther, its pull (the gain times the way) jerked arms lagging a fast
-plan."""
+for an arm within the first of these of the waypoint the plan all but waits for, or of the
+plan's line past it, fading out to the second. From farther, its pull (the gain times the
+way) jerked arms lagging a fast plan, and arms going round the obstacle past the waypoint."""
 GOAL_KEPT = (0.005, 0.03)
 """m: how far off the way to p_j (as in BEHIND) the arm is when DM's look-ahead to the
 following waypoint is undone: an arm still on its way round the obstacle keeps looking at
@@ -426,6 +426,14 @@ def step(
     measurement = sense(
         ops, law.obstacle, config.sensing_range, tcp, goal, (heading_cos, heading_sin)
     )
+    # How far the TCP is past the waypoint the plan waits for (not passed), along the plan's
+    # way at the reference (:func:`approach_pull`).
+    beyond = ops.where(
+        plan_speed > 0.0,
+        ((tcp[0] - waited[0]) * velocity[0] + (tcp[1] - waited[1]) * velocity[1])
+        / ops.where(plan_speed > 0.0, plan_speed, 1.0),
+        0.0,
+    )
     pull = approach_pull(
         ops,
         rate,
@@ -434,6 +442,7 @@ def step(
         measurement.clearance,
         ops.where(waiting_next, stage.room, stage.room_before),
         ops.where(waiting_next, stage.clear_way, stage.clear_way_before),
+        beyond,
     )
     min_distance = ops.min(measurement.d_left, measurement.d_right)
 
@@ -863,11 +872,16 @@ def approach_pull(
     clearance: Real,
     room: Real,
     clear_way: Real,
+    beyond: Real,
 ) -> Real:
     """How far the final approach takes over from the blended command, 0..1: as far as the
     plan waits (1 - ``rate``), in the waited waypoint's free room (``depth``, :func:`_depth`)
     and, once the plan all but waits (``rate`` below WAITING_RATE) for an arm within
-    WAITING_REACH of it (``away``), wherever the straight way to it is clear.
+    WAITING_REACH of it (``away``), wherever the straight way to it is clear. So too, however
+    far, for an arm ``beyond`` the waypoint (m past it along the plan's way) within
+    WAITING_REACH of the plan's line there: AO brings arms out past a waypoint the plan comes
+    to from the other side, and PT, seeing them ahead of a reference short of it, crawled on
+    away from the waypoint until they stood.
 
     The straight way is clear where the discs the obstacle leaves free round the TCP
     (``clearance``) and round the waypoint (``room``) cover it: their radii add up to more than
@@ -878,7 +892,7 @@ def approach_pull(
     """
     in_room = (1.0 - rate) * depth
     return ops.branch(
-        (rate < WAITING_RATE) & (away < WAITING_REACH[1]),
+        (rate < WAITING_RATE) & ((away < WAITING_REACH[1]) | (beyond > 0.0)),
         _waiting_pull,
         in_room,
         ops,
@@ -887,17 +901,22 @@ def approach_pull(
         away,
         clearance + room - away,
         clear_way,
+        beyond,
     )
 
 
 def _waiting_pull(
-    ops: Ops, rate: Real, in_room: Real, away: Real, covered: Real, clear_way: Real
+    ops: Ops, rate: Real, in_room: Real, away: Real, covered: Real, clear_way: Real, beyond: Real
 ) -> Real:
-    """:func:`approach_pull` where the plan all but waits for an arm within WAITING_REACH
-    (``covered``: by how much the two free discs cover the straight way)."""
+    """:func:`approach_pull` where the plan all but waits for an arm within WAITING_REACH,
+    or past the waypoint (``covered``: by how much the two free discs cover the straight
+    way)."""
     low, high = WAITING_REACH
+    # Past the waypoint, the way to the plan's line there: the same as to the waypoint as
+    # the arm comes past it, so the pull does not jump.
+    off = ops.where(beyond > 0.0, ops.sqrt(ops.max(away * away - beyond * beyond, 0.0)), away)
     waiting = (1.0 - smoothstep(ops, rate / WAITING_RATE)) * (
-        1.0 - smoothstep(ops, (away - low) / (high - low))
+        1.0 - smoothstep(ops, (off - low) / (high - low))
     )
     clear = smoothstep(ops, covered / clear_way)
     return ops.max(in_room, (1.0 - rate) * waiting * clear)

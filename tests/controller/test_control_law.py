@@ -685,7 +685,9 @@ def test_final_approach_reaches_past_the_free_room_where_the_plan_waits_and_way_
     near = WAITING_REACH[0]
 
     def pull(rate: float, away: float, clearance: float) -> float:
-        return float(approach_pull(SCALAR, rate, outside_room, away, clearance, room, clear_way))
+        return float(
+            approach_pull(SCALAR, rate, outside_room, away, clearance, room, clear_way, 0.0)
+        )
 
     assert pull(0.0, near, 0.012) == pytest.approx(1.0)  # 12 + 8 - 10 >= clear_way: in full
     assert 0.0 < pull(0.0, near, 0.005) < 1.0  # covered by 3 mm: in part
@@ -694,7 +696,31 @@ def test_final_approach_reaches_past_the_free_room_where_the_plan_waits_and_way_
     assert 0.0 < pull(0.0, (near + WAITING_REACH[1]) / 2, 0.05) < 1.0
     assert pull(0.0, WAITING_REACH[1], 0.05) == 0.0  # from farther: PT brings it nearer first
     # In the free room the approach acts as far as the plan waits, clear way or not.
-    assert approach_pull(SCALAR, 0.25, 1.0, 0.001, 0.0, room, clear_way) == pytest.approx(0.75)
+    assert approach_pull(SCALAR, 0.25, 1.0, 0.001, 0.0, room, clear_way, 0.0) == pytest.approx(0.75)
+
+
+def test_final_approach_takes_over_past_the_waited_waypoint_along_the_plans_line() -> None:
+    """An arm AO brought out 50 mm past the waypoint the plan waits for, along the plan's way
+    (PT sees it ahead of the reference and would crawl on, away from the waypoint): the
+    final approach takes over however far, on the plan's line and up to WAITING_REACH[0] off
+    it, in part farther off, not from WAITING_REACH[1] off it (an arm going round the
+    obstacle), nor short of the waypoint (a lagging arm, which PT brings nearer first); and
+    the pull does not jump as the arm comes past the waypoint."""
+    room = clear_way = 0.008
+    low, high = WAITING_REACH
+    far = 0.05
+
+    def pull(off: float, beyond: float) -> float:
+        away = math.hypot(off, beyond)
+        return float(approach_pull(SCALAR, 0.0, 0.0, away, 0.1, room, clear_way, beyond))
+
+    assert pull(0.0, far) == pytest.approx(1.0)
+    assert pull(low, far) == pytest.approx(1.0)
+    assert 0.0 < pull((low + high) / 2, far) < 1.0
+    assert pull(high + 0.001, far) == 0.0
+    assert pull(0.0, -far) == 0.0
+    assert pull(0.015, 1e-9) == pytest.approx(pull(0.015, -1e-9), abs=1e-6)
+    assert approach_pull(SCALAR, WAITING_RATE, 0.0, far, 0.1, room, clear_way, far) == 0.0
 
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:

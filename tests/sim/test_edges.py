@@ -201,6 +201,23 @@ def test_a_plan_bending_round_an_obstacle_the_straight_way_keeps_clear_of_is_don
     assert fuzzy.peak_jerk < conventional.peak_jerk
 
 
+@pytest.mark.parametrize(("family", "index"), [(Family.EDGE_REACH, 861), (Family.WIDE, 864)])
+def test_an_arm_brought_out_past_the_waypoint_the_plan_waits_for_comes_back_to_it(
+    family: Family, index: int
+) -> None:
+    """Seed 4: AO brought the arm out 33 mm (edge_reach 861, fuzzy) and 60 mm (wide 864,
+    the hard switch) past the waypoint the plan waits for, along the plan's way, 10-14 mm
+    off its line: the plan comes to that waypoint from the other side. PT saw the arm ahead
+    of a reference short of the waypoint and crawled on, away from it, until the arm stood
+    (margins 0.19, 0.14). The final approach now takes over there: no stop in either mode."""
+    task = generate_scenario_at(4, index, family=family)
+    check_task(task)
+    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
+    assert fuzzy.outcome == conventional.outcome == "done"
+    assert fuzzy.stops == conventional.stops == 0
+    assert fuzzy.peak_jerk < conventional.peak_jerk
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.FAST, 461), (Family.EDGE_SPEED, 633)])
 def test_an_arm_pulled_back_to_a_waypoint_it_went_by_swings_round_no_harder_than_the_switch(
     family: Family, index: int
