@@ -15,7 +15,7 @@ from controller.control_law import ControlLaw
 from controller.planner import plan_of
 from controller.task_rules import check_task, rule_of
 from protocol.errors import ConfigError
-from protocol.scenario import Mode
+from protocol.scenario import Mode, Scenario
 from sim.batch import simulate_batch
 from sim.generator import Family, generate_scenario_at
 from sim.measures import WAYPOINT_TOLERANCE
@@ -52,6 +52,18 @@ def test_an_edge_familys_tasks_sit_just_either_side_of_its_rule(family: Family) 
             measures = run.measures
             assert measures.outcome == "done", (task.name, mode, measures.outcome)
             assert measures.max_waypoint_miss <= 0.002 and measures.stops == 0, task.name
+
+
+def _done_in_both_modes_without_a_stop(task: Scenario) -> None:
+    """``task`` is taken, and done in both modes with no stop and no waypoint missed, fuzzy
+    the smoother."""
+    check_task(task)
+    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
+    assert fuzzy.outcome == conventional.outcome == "done"
+    assert fuzzy.stops == conventional.stops == 0
+    assert fuzzy.max_waypoint_miss < WAYPOINT_TOLERANCE
+    assert conventional.max_waypoint_miss < WAYPOINT_TOLERANCE
+    assert fuzzy.peak_jerk < conventional.peak_jerk
 
 
 @pytest.mark.parametrize(
@@ -178,11 +190,7 @@ def test_an_arm_that_went_by_a_waypoint_beside_it_is_brought_back_without_standi
     the two added as vectors all but cancelled, and it stood (margins 0.99, 0.67, 0.41). The
     final approach now turns the way there: no stop in either mode, fuzzy the smoother."""
     task = generate_scenario_at(seed, index, family=family)
-    check_task(task)
-    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
-    assert fuzzy.outcome == conventional.outcome == "done"
-    assert fuzzy.stops == conventional.stops == 0
-    assert fuzzy.peak_jerk < conventional.peak_jerk
+    _done_in_both_modes_without_a_stop(task)
 
 
 def test_a_plan_bending_round_an_obstacle_the_straight_way_keeps_clear_of_is_done() -> None:
@@ -192,13 +200,7 @@ def test_a_plan_bending_round_an_obstacle_the_straight_way_keeps_clear_of_is_don
     at theta2's stop 1 mm from the obstacle until no progress ended the run (both modes); AO
     now takes the side whose way stays within the limits, round the outer end."""
     task = generate_scenario_at(2, 73, family=Family.WIDE)
-    check_task(task)
-    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
-    assert fuzzy.outcome == conventional.outcome == "done"
-    assert fuzzy.stops == conventional.stops == 0
-    assert fuzzy.max_waypoint_miss < WAYPOINT_TOLERANCE
-    assert conventional.max_waypoint_miss < WAYPOINT_TOLERANCE
-    assert fuzzy.peak_jerk < conventional.peak_jerk
+    _done_in_both_modes_without_a_stop(task)
 
 
 @pytest.mark.parametrize(("family", "index"), [(Family.EDGE_REACH, 861), (Family.WIDE, 864)])
@@ -211,11 +213,7 @@ def test_an_arm_brought_out_past_the_waypoint_the_plan_waits_for_comes_back_to_i
     of a reference short of the waypoint and crawled on, away from it, until the arm stood
     (margins 0.19, 0.14). The final approach now takes over there: no stop in either mode."""
     task = generate_scenario_at(4, index, family=family)
-    check_task(task)
-    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
-    assert fuzzy.outcome == conventional.outcome == "done"
-    assert fuzzy.stops == conventional.stops == 0
-    assert fuzzy.peak_jerk < conventional.peak_jerk
+    _done_in_both_modes_without_a_stop(task)
 
 
 @pytest.mark.parametrize(("family", "index"), [(Family.FAST, 461), (Family.EDGE_SPEED, 633)])
@@ -226,11 +224,7 @@ def test_an_arm_pulled_back_to_a_waypoint_it_went_by_swings_round_no_harder_than
     fuzzy arm swung round at speed and jerked more than the hard switch's (fast 461: 806
     against 644 m/s^3; edge_speed 633: 799 against 541)."""
     task = generate_scenario_at(0, index, family=family)
-    check_task(task)
-    fuzzy, conventional = (simulate(task, mode).measures for mode in Mode)
-    assert fuzzy.outcome == conventional.outcome == "done"
-    assert fuzzy.stops == conventional.stops == 0
-    assert fuzzy.peak_jerk < conventional.peak_jerk
+    _done_in_both_modes_without_a_stop(task)
 
 
 @pytest.mark.parametrize("index", [772, 895, 898])
