@@ -58,7 +58,7 @@ from protocol.scenario import (
     Waypoint,
 )
 from sim.edges import Edge, at_edge
-from sim.measures import STOP_REST_MARGIN, STOP_SPEED_FRACTION, stop_threshold_and_rests
+from sim.measures import STOP_REST_MARGIN, crawl_speed, stop_threshold_and_rests
 
 
 class Case(Enum):
@@ -158,8 +158,6 @@ MAX_ATTEMPTS = 500
 """Draws per scenario before giving up (a valid one comes within a few)."""
 PATH_SAMPLES = 2000
 """Planned points checked against the height and speed rules."""
-CRAWL_FRACTION = 0.1
-"""The plan moves at least this fraction of its mean planar speed, except near its rests."""
 BISECTIONS = 40
 """Halvings of the distance an obstacle is moved to its place (0.5 m / 2^40: far below a
 micrometre)."""
@@ -740,13 +738,13 @@ def _xyz(point: Waypoint) -> Point:
 
 
 def _moves_sensibly(scenario: Scenario) -> bool:
-    """The plan never crawls (below CRAWL_FRACTION of its mean planar speed) except within
+    """The plan never crawls (below :func:`~sim.measures.crawl_speed`) except within
     STOP_REST_MARGIN of a waypoint it stops at: a crawl is where the stop measure cannot
     tell a lagging arm from a stopped one (the wire's velocity quantum is 1e-3 rad/s)."""
     plan = plan_of(scenario)
     threshold, rest_indices = stop_threshold_and_rests(plan)
     rests = np.array([plan.times[index] for index in rest_indices])
-    crawl = threshold * CRAWL_FRACTION / STOP_SPEED_FRACTION
+    crawl = crawl_speed(threshold)
     times = np.linspace(scenario.waypoints[0].t, scenario.waypoints[-1].t, PATH_SAMPLES)
     velocities = plan.sample(times)[1].tolist()
     speeds = np.array([math.hypot(vx, vy) for vx, vy, _ in velocities])

@@ -28,7 +28,10 @@ STOP_EDGE_MARGIN = 0.2
 STOP_REST_MARGIN = 0.1
 """... nor within this many seconds of plan of a stretch where the plan itself is slower than
 the stop speed (:func:`slow_stretches`: the arm lags the plan, and slowing down to a planned
-stop, or moving off from one, is not a stop)."""
+stop, or moving off from one, is not a stop), nor of a waypoint where it turns back while it
+crawls (:func:`turn_backs`)."""
+CRAWL_FRACTION = 0.1
+"""The plan crawls below this fraction of its mean planar speed (five times the stop speed)."""
 PLAN_SAMPLES = 2001
 """Points of the plan sampled for its length."""
 Array = npt.NDArray[np.float64]
@@ -112,6 +115,32 @@ def stop_threshold_and_rests(planned: Trajectory) -> tuple[float, list[int]]:
     return threshold, rests
 
 
+def crawl_speed(threshold: float) -> float:
+    """The plan's crawl: CRAWL_FRACTION of its mean planar speed, from its stop speed."""
+    return threshold * CRAWL_FRACTION / STOP_SPEED_FRACTION
+
+
+def turn_backs(planned: Trajectory, threshold: float) -> list[float]:
+    """The times of the waypoints where the plan turns back while it crawls: it passes slower
+    than its crawl speed (:func:`crawl_speed` of its stop speed ``threshold``), and its
+    way STOP_REST_MARGIN after is more than 90 degrees from its way STOP_REST_MARGIN before.
+
+    A heading-steered arm turns round there: its speed along the heading passes through 0
+    while the way it wants swings past 90 degrees off it, and the plan, a few times the stop
+    speed, gives it no more than a few ms to swing (``edge_obstacle`` seed 4, 640: 110-147
+    degrees at 1.5 times the stop speed, the arm below it 16 and 25 ticks)."""
+    crawl = crawl_speed(threshold)
+    times = np.asarray(planned.times[1:-1])
+    if not len(times):
+        return []
+    around = np.concatenate([times - STOP_REST_MARGIN, times, times + STOP_REST_MARGIN])
+    velocities = planned.sample(around)[1][:, :2].reshape(3, len(times), 2)
+    before, at, after = velocities
+    crawling = np.hypot(at[:, 0], at[:, 1]) < crawl
+    turning_back = np.einsum("ij,ij->i", before, after) < 0.0
+    return [float(t) for t in times[crawling & turning_back]]
+
+
 def slow_stretches(planned: Trajectory, threshold: float) -> list[tuple[float, float]]:
     """The stretches of plan time where the plan's planar speed is below ``threshold``: its
     rests at waypoints, a coordinate of a cubic turning back between two (it overshoots its
@@ -193,7 +222,8 @@ class MeasureStream:
             planned = plan_of(scenario)
             threshold, rests = stop_threshold_and_rests(planned)
             self._threshold[row] = threshold
-            every_stretch.append(slow_stretches(planned, threshold))
+            turns = [(t, t) for t in turn_backs(planned, threshold)]
+            every_stretch.append(slow_stretches(planned, threshold) + turns)
             self._rest_times[row, : len(planned.times)] = planned.times
             for index in rests:
                 if index:

@@ -23,8 +23,10 @@ from sim.measures import (
     WAYPOINT_TOLERANCE,
     MeasureStream,
     compute_measures,
+    crawl_speed,
     slow_stretches,
     stop_threshold_and_rests,
+    turn_backs,
 )
 from sim.simulation import SimulationRun, simulate
 
@@ -224,6 +226,65 @@ def test_where_the_plan_itself_is_slower_than_the_stop_speed_it_rests(
     assert stops_frozen_at(end + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
     assert stops_frozen_at(end + STOP_REST_MARGIN + tick) == 1
     assert stops_frozen_at(start - STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 1
+
+
+@pytest.mark.parametrize(
+    ("family", "seed", "index"),
+    [
+        # The plan turns back 110-147 degrees through waypoint 1 at 1.5 times the stop speed;
+        # the arm, a little ahead, was below it 16 (fuzzy) and 25 (hard switch) ticks.
+        (Family.EDGE_OBSTACLE, 4, 640),
+        # 150 degrees at 1.2 times the stop speed; 3 ticks at 0.99 in both modes.
+        (Family.EDGE_LIMIT, 1, 757),
+    ],
+)
+def test_where_the_plan_turns_back_while_it_crawls_the_arm_turns_round_without_a_stop(
+    family: Family, seed: int, index: int
+) -> None:
+    scenario = generate_scenario_at(seed, index, family=family, held_out=True)
+    planned = plan_of(scenario)
+    threshold = stop_threshold_and_rests(planned)[0]
+    turn = scenario.waypoints[1].t
+    assert turn in turn_backs(planned, threshold)
+    # At the crawl's edge: a plan passing just slower than its crawl speed turns back
+    # there; just faster, not.
+    speed = math.hypot(*planned.velocities[1][:2])
+    assert turn in turn_backs(planned, threshold * speed / crawl_speed(threshold) * 1.0001)
+    assert turn not in turn_backs(planned, threshold * speed / crawl_speed(threshold) * 0.9999)
+    for mode in Mode:
+        run = simulate(scenario, mode)
+        assert run.measures.stops == 0
+        progress = run.log["progress"]
+
+        def stops_frozen_at(plan_time: float, run: SimulationRun = run) -> int:
+            """Stops with the arm frozen for STOP_MIN_TICKS ticks from that time of plan."""
+            first = int(np.searchsorted(run.log["progress"], plan_time))
+            tampered = RunLog.from_array(run.log.data.copy())
+            for name in ("theta1_rate", "theta2_rate", "d3_rate"):
+                tampered[name][first : first + STOP_MIN_TICKS] = 0.0
+            return compute_measures(scenario, tampered, run.measures.outcome).stops
+
+        tick = scenario.controller.period
+        assert progress.max() > turn + 2 * STOP_REST_MARGIN
+        assert stops_frozen_at(turn + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
+        assert stops_frozen_at(turn + STOP_REST_MARGIN + tick) == 1
+
+
+def test_a_plan_crawling_through_a_waypoint_without_turning_back_is_watched_for_stops() -> None:
+    # The plan passes waypoint 2 at 4.6 times the stop speed, within its crawl, but turns
+    # only 55 degrees there: an arm frozen there is stopped.
+    scenario = generate_scenario_at(4, 426, family=Family.EDGE_OBSTACLE, held_out=True)
+    planned = plan_of(scenario)
+    threshold = stop_threshold_and_rests(planned)[0]
+    assert math.hypot(*planned.velocities[2][:2]) < crawl_speed(threshold)
+    assert turn_backs(planned, threshold) == []
+    run = simulate(scenario, Mode.FUZZY)
+    assert run.measures.stops == 0
+    first = int(np.searchsorted(run.log["progress"], scenario.waypoints[2].t))
+    tampered = RunLog.from_array(run.log.data.copy())
+    for name in ("theta1_rate", "theta2_rate", "d3_rate"):
+        tampered[name][first : first + STOP_MIN_TICKS] = 0.0
+    assert compute_measures(scenario, tampered, run.measures.outcome).stops == 1
 
 
 @pytest.mark.parametrize(("gap", "stops"), [(0.9999, 0), (1.0001, 1)])
