@@ -551,8 +551,13 @@ def step(
         )
     vx, vy = reach_limited(ops, config.reach_rate, law.full_reach, vx, vy, tcp)
     lead = height_lead(ops, waiting_next, to_next, reference_to_next)
-    vz = (1.0 - lead) * reference_velocity[2] + config.height_gain * (
-        reference[2] + ops.max(pull, lead) * (waited[2] - reference[2]) - tcp[2]
+    vz = height_rate(
+        ops,
+        config.height_gain,
+        (reference[2], reference_velocity[2]),
+        waited[2],
+        tcp[2],
+        ops.max(pull, lead),
     )
     rate1, rate2 = joint_rates(ops, law.robot, theta2, trig, vx, vy, config.damping)
     wanted, limited = _limit(ops, law, (rate1, rate2, -vz), state.previous)
@@ -920,6 +925,19 @@ def _waiting_pull(
     )
     clear = smoothstep(ops, covered / clear_way)
     return ops.max(in_room, (1.0 - rate) * waiting * clear)
+
+
+def height_rate(
+    ops: Ops, gain: float, reference: tuple[Real, Real], waited: Real, tcp: Real, aim: Real
+) -> Real:
+    """The height loop's vertical speed: to the reference's height (``reference``: it and
+    its vertical speed, fed forward), or ``aim`` (0..1) of the way to the height of the
+    waypoint waited for, where the final approach pulls or the height leads
+    (:func:`height_lead`): a fixed point, so only ``1 - aim`` of the plan's vertical speed is
+    fed forward. Fed forward in full, it carried an arm the plan held at a waypoint 2 mm
+    below it, and the arm stood in the plane while it came back (``edge_speed`` seed 4, 823)."""
+    height, speed = reference
+    return (1.0 - aim) * speed + gain * (height + aim * (waited - height) - tcp)
 
 
 def height_lead(ops: Ops, ahead: Mask, to_next: Real, reference_to_next: Real) -> Real:

@@ -29,6 +29,7 @@ from controller.control_law import (
     approach_pull,
     final_approach,
     height_lead,
+    height_rate,
     rate_towards,
     reach_limited,
     turned_towards,
@@ -721,6 +722,21 @@ def test_final_approach_takes_over_past_the_waited_waypoint_along_the_plans_line
     assert pull(0.0, -far) == 0.0
     assert pull(0.015, 1e-9) == pytest.approx(pull(0.015, -1e-9), abs=1e-6)
     assert approach_pull(SCALAR, WAITING_RATE, 0.0, far, 0.1, room, clear_way, far) == 0.0
+
+
+def test_the_height_loop_steering_to_a_waypoint_feeds_forward_none_of_the_plans_speed() -> None:
+    """On the reference (aim 0) the plan's vertical speed is fed forward in full; steering to
+    the waypoint waited for (aim 1), none of it: the loop closes on the waypoint's height
+    alone, whatever the plan's speed; between, both in proportion."""
+    gain, height, waited, tcp = 10.0, 0.25, 0.2344, 0.2322
+
+    def rate(speed: float, aim: float) -> float:
+        return float(height_rate(SCALAR, gain, (height, speed), waited, tcp, aim))
+
+    assert rate(-0.2, 0.0) == pytest.approx(-0.2 + gain * (height - tcp))
+    assert rate(-0.2, 1.0) == pytest.approx(gain * (waited - tcp))
+    assert rate(0.3, 1.0) == rate(-0.2, 1.0) > 0.0  # up to the waypoint, not on down
+    assert rate(-0.2, 0.5) == pytest.approx((rate(-0.2, 0.0) + rate(-0.2, 1.0)) / 2)
 
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:

@@ -216,6 +216,14 @@ def test_an_arm_brought_out_past_the_waypoint_the_plan_waits_for_comes_back_to_i
     _done_in_both_modes_without_a_stop(task)
 
 
+def test_an_arm_the_plan_holds_at_a_waypoint_is_not_carried_past_its_height() -> None:
+    """Edge_speed seed 4, 823: the plan held the fuzzy arm at waypoint 1, and the height
+    loop, steering to the waypoint's height, still fed forward the plan's descent at the
+    rising rate: the arm went 2.2 mm below the waypoint, the plan waited for it in space,
+    and it stood in the plane while it came back up (margin 0.59)."""
+    _done_in_both_modes_without_a_stop(generate_scenario_at(4, 823, family=Family.EDGE_SPEED))
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.FAST, 461), (Family.EDGE_SPEED, 633)])
 def test_an_arm_pulled_back_to_a_waypoint_it_went_by_swings_round_no_harder_than_the_switch(
     family: Family, index: int

@@ -241,7 +241,7 @@ def test_where_the_plan_itself_is_slower_than_the_stop_speed_it_rests(
 def test_where_the_plan_turns_back_while_it_crawls_the_arm_turns_round_without_a_stop(
     family: Family, seed: int, index: int
 ) -> None:
-    scenario = generate_scenario_at(seed, index, family=family, held_out=True)
+    scenario = generate_scenario_at(seed, index, family=family)
     planned = plan_of(scenario)
     threshold = stop_threshold_and_rests(planned)[0]
     turn = scenario.waypoints[1].t
@@ -273,7 +273,7 @@ def test_where_the_plan_turns_back_while_it_crawls_the_arm_turns_round_without_a
 def test_a_plan_crawling_through_a_waypoint_without_turning_back_is_watched_for_stops() -> None:
     # The plan passes waypoint 2 at 4.6 times the stop speed, within its crawl, but turns
     # only 55 degrees there: an arm frozen there is stopped.
-    scenario = generate_scenario_at(4, 426, family=Family.EDGE_OBSTACLE, held_out=True)
+    scenario = generate_scenario_at(4, 426, family=Family.EDGE_OBSTACLE)
     planned = plan_of(scenario)
     threshold = stop_threshold_and_rests(planned)[0]
     assert math.hypot(*planned.velocities[2][:2]) < crawl_speed(threshold)
