@@ -123,7 +123,8 @@ def crawl_speed(threshold: float) -> float:
 def turn_backs(planned: Trajectory, threshold: float) -> list[float]:
     """The times of the waypoints where the plan turns back while it crawls: it passes slower
     than its crawl speed (:func:`crawl_speed` of its stop speed ``threshold``), and its
-    way STOP_REST_MARGIN after is more than 90 degrees from its way STOP_REST_MARGIN before.
+    way STOP_REST_MARGIN after is more than 90 degrees from its way STOP_REST_MARGIN before
+    (or at the plan's start or end, if nearer).
 
     A heading-steered arm turns round there: its speed along the heading passes through 0
     while the way it wants swings past 90 degrees off it, and the plan, a few times the stop
@@ -134,6 +135,7 @@ def turn_backs(planned: Trajectory, threshold: float) -> list[float]:
     if not len(times):
         return []
     around = np.concatenate([times - STOP_REST_MARGIN, times, times + STOP_REST_MARGIN])
+    around = np.clip(around, planned.times[0], planned.times[-1])
     velocities = planned.sample(around)[1][:, :2].reshape(3, len(times), 2)
     before, at, after = velocities
     crawling = np.hypot(at[:, 0], at[:, 1]) < crawl
