@@ -179,6 +179,15 @@ def test_stop_margin_is_below_one_exactly_where_a_stop_is_counted() -> None:
     assert stops == 0 and 1.0 < margin < 1.6
 
 
+def _stops_frozen_at(run: SimulationRun, plan_time: float) -> int:
+    """The run's stops with the arm frozen for STOP_MIN_TICKS ticks from that time of plan."""
+    first = int(np.searchsorted(run.log["progress"], plan_time))
+    tampered = RunLog.from_array(run.log.data.copy())
+    for name in ("theta1_rate", "theta2_rate", "d3_rate"):
+        tampered[name][first : first + STOP_MIN_TICKS] = 0.0
+    return compute_measures(run.scenario, tampered, run.measures.outcome).stops
+
+
 @pytest.mark.parametrize(
     ("index", "mode", "waypoint"),
     [
@@ -212,20 +221,10 @@ def test_where_the_plan_itself_is_slower_than_the_stop_speed_it_rests(
 
     run = simulate(scenario, mode)
     assert run.measures.stops == 0
-    progress = run.log["progress"]
-
-    def stops_frozen_at(plan_time: float) -> int:
-        """Stops with the arm frozen for STOP_MIN_TICKS ticks from that time of plan."""
-        first = int(np.searchsorted(progress, plan_time))
-        tampered = RunLog.from_array(run.log.data.copy())
-        for name in ("theta1_rate", "theta2_rate", "d3_rate"):
-            tampered[name][first : first + STOP_MIN_TICKS] = 0.0
-        return compute_measures(scenario, tampered, run.measures.outcome).stops
-
     tick = scenario.controller.period
-    assert stops_frozen_at(end + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
-    assert stops_frozen_at(end + STOP_REST_MARGIN + tick) == 1
-    assert stops_frozen_at(start - STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 1
+    assert _stops_frozen_at(run, end + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
+    assert _stops_frozen_at(run, end + STOP_REST_MARGIN + tick) == 1
+    assert _stops_frozen_at(run, start - STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 1
 
 
 @pytest.mark.parametrize(
@@ -254,20 +253,10 @@ def test_where_the_plan_turns_back_while_it_crawls_the_arm_turns_round_without_a
     for mode in Mode:
         run = simulate(scenario, mode)
         assert run.measures.stops == 0
-        progress = run.log["progress"]
-
-        def stops_frozen_at(plan_time: float, run: SimulationRun = run) -> int:
-            """Stops with the arm frozen for STOP_MIN_TICKS ticks from that time of plan."""
-            first = int(np.searchsorted(run.log["progress"], plan_time))
-            tampered = RunLog.from_array(run.log.data.copy())
-            for name in ("theta1_rate", "theta2_rate", "d3_rate"):
-                tampered[name][first : first + STOP_MIN_TICKS] = 0.0
-            return compute_measures(scenario, tampered, run.measures.outcome).stops
-
         tick = scenario.controller.period
-        assert progress.max() > turn + 2 * STOP_REST_MARGIN
-        assert stops_frozen_at(turn + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
-        assert stops_frozen_at(turn + STOP_REST_MARGIN + tick) == 1
+        assert run.log["progress"].max() > turn + 2 * STOP_REST_MARGIN
+        assert _stops_frozen_at(run, turn + STOP_REST_MARGIN - (STOP_MIN_TICKS + 1) * tick) == 0
+        assert _stops_frozen_at(run, turn + STOP_REST_MARGIN + tick) == 1
 
 
 def test_a_plan_crawling_through_a_waypoint_without_turning_back_is_watched_for_stops() -> None:
@@ -280,11 +269,7 @@ def test_a_plan_crawling_through_a_waypoint_without_turning_back_is_watched_for_
     assert turn_backs(planned, threshold) == []
     run = simulate(scenario, Mode.FUZZY)
     assert run.measures.stops == 0
-    first = int(np.searchsorted(run.log["progress"], scenario.waypoints[2].t))
-    tampered = RunLog.from_array(run.log.data.copy())
-    for name in ("theta1_rate", "theta2_rate", "d3_rate"):
-        tampered[name][first : first + STOP_MIN_TICKS] = 0.0
-    assert compute_measures(scenario, tampered, run.measures.outcome).stops == 1
+    assert _stops_frozen_at(run, scenario.waypoints[2].t) == 1
 
 
 @pytest.mark.parametrize(("gap", "stops"), [(0.9999, 0), (1.0001, 1)])
