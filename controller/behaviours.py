@@ -169,7 +169,7 @@ def avoid_obstacle(
     position: tuple[Real, Real],
     goal: tuple[Real, Real],
     elbow: Real,
-    near_stop: Mask,
+    check_again: Mask,
 ) -> tuple[Command, Real]:
     """AO with its TL/TR choice (``side``: +1 TL, -1 TR, 0 none yet), and the side kept.
 
@@ -178,8 +178,9 @@ def avoid_obstacle(
     nearer on unless the joint limits close that way round to ``goal`` and leave the other
     open (:mod:`controller.detour`; ``elbow``: the sign of theta2; ``obstacle``, the inflated
     one, where the straight way keeps clear of it: :func:`_side_the_joints_take`), keeps it
-    while it acts unless that way closes (checked while ``near_stop``: a joint near its
-    stop), and forgets it when it stops.
+    while it acts unless that way closes (checked again while ``check_again``: a joint near
+    its stop, where a way round closes, or the plan just moved on to its next waypoint, the
+    goal the way was judged to), and forgets it when it stops.
     """
     engaged = measurement.present & ops.not_(
         (ops.max(measurement.ahead, measurement.toward) <= AHEAD_NONE)
@@ -188,10 +189,10 @@ def avoid_obstacle(
     fresh = side == 0
     chosen = ops.where(measurement.d_left >= measurement.d_right, TURN_LEFT, TURN_RIGHT)
     side = ops.where(engaged, ops.where(fresh, chosen, side), 0)
-    # The side is checked when it is chosen, and again while a joint is near its stop (where
-    # a way round closes) if the way to the goal is blocked.
+    # The side is checked when it is chosen, and again when asked (check_again) if the way to
+    # the goal is blocked.
     side = ops.branch(
-        engaged & (fresh | near_stop & measurement.blocked),
+        engaged & (fresh | check_again & measurement.blocked),
         _side_the_joints_take,
         side,
         ops,

@@ -479,7 +479,10 @@ def step(
         (tcp[0], tcp[1]),
         goal,
         ops.where(theta2 >= 0.0, 1.0, -1.0),
-        _near_stop(ops, law.robot, theta1, theta2),
+        # A side chosen on the way to p_j-1 (an arm there ahead of the plan) is checked again
+        # for p_j when the plan moves on to it: kept, it took an arm round the far side of an
+        # obstacle near the outer reach, where the way was closed (outer seed 5,000,000, 518).
+        _near_stop(ops, law.robot, theta1, theta2) | (state.progress < stage.start),
     )
     at_waypoint = _at_waypoint(
         ops,

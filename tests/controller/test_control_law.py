@@ -300,8 +300,8 @@ def test_where_the_straight_way_runs_through_the_inner_hole_avoiding_takes_the_o
     assert not measurement.blocked
     assert measurement.d_right > measurement.d_left
     heading = math.atan2(goal[1] - tcp[1], goal[0] - tcp[0])
-    for near_stop in (False, True):
-        assert _side_chosen(obstacle, measurement, heading, tcp, goal, near_stop) == side
+    for check_again in (False, True):
+        assert _side_chosen(obstacle, measurement, heading, tcp, goal, check_again) == side
 
 
 @pytest.mark.parametrize(("gap", "side"), [(0.0065, TURN_LEFT), (0.0055, TURN_RIGHT)])
@@ -323,13 +323,43 @@ def test_past_an_obstacle_by_the_inner_hole_the_side_is_judged_round_the_obstacl
     assert _side_chosen(obstacle, measurement, math.pi / 2.0, tcp, goal, False) == side
 
 
+@pytest.mark.parametrize("check_again", [False, True])
+def test_a_side_kept_is_checked_again_when_asked_and_left_where_its_way_is_closed(
+    check_again: bool,
+) -> None:
+    """An obstacle reaching out past the outer reach, the TCP at one end and the goal at the
+    other (outer seed 5,000,000, 518, as the plan moved on to waypoint 2): the way round the
+    far side runs out of reach, the near side's is open. The far side, chosen on the way to
+    the waypoint before, is kept until it is checked again, then left."""
+    obstacle = EllipticCylinder(0.0839, -0.567, 0.0466, 0.0277, 0.4233, 2.0086, 0.02)
+    tcp, goal = (-0.074, -0.5854, 0.296), (0.1601, -0.5705)
+    measurement = measure(obstacle, tcp, goal, CONFIG.sensing_range)
+    assert measurement.blocked
+    _, side = avoid_obstacle(
+        SCALAR,
+        CONFIG,
+        RobotConfig(),
+        obstacle.grown(CONFIG.ao_pass_margin).section(),
+        obstacle.section(),
+        measurement,
+        measurement.min_distance,
+        TURN_RIGHT,  # round the far side, away from the base
+        math.atan2(goal[1] - tcp[1], goal[0] - tcp[0]),
+        tcp[:2],
+        goal,
+        1.0,
+        check_again,
+    )
+    assert side == (TURN_LEFT if check_again else TURN_RIGHT)
+
+
 def _side_chosen(
     obstacle: EllipticCylinder,
     measurement: ObstacleMeasurement,
     heading: float,
     tcp: tuple[float, float, float],
     goal: tuple[float, float],
-    near_stop: bool,
+    check_again: bool,
 ) -> float:
     """The side AO chooses afresh, its elbow down, round ``obstacle`` grown by the pass
     margin."""
@@ -346,7 +376,7 @@ def _side_chosen(
         tcp[:2],
         goal,
         1.0,
-        near_stop,
+        check_again,
     )
     return chosen
 

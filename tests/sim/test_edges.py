@@ -203,6 +203,16 @@ def test_a_plan_bending_round_an_obstacle_the_straight_way_keeps_clear_of_is_don
     _done_in_both_modes_without_a_stop(task)
 
 
+def test_an_arm_early_at_a_waypoint_goes_round_the_obstacle_on_the_side_open_to_the_next() -> None:
+    """Outer seed 5,000,000, 518 (the fourth held-out part, spent): the arm passed waypoint 1
+    ahead of the plan, beside an obstacle reaching out past the outer reach, and AO chose its
+    side for a goal still on its way to waypoint 2. It kept that side, the far one, and the
+    arm stood 1 mm from the obstacle at the outer reach until no progress ended the run, in
+    both modes. The side is checked again when the plan moves on."""
+    task = generate_scenario_at(5_000_000, 518, family=Family.OUTER, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.EDGE_REACH, 861), (Family.WIDE, 864)])
 def test_an_arm_brought_out_past_the_waypoint_the_plan_waits_for_comes_back_to_it(
     family: Family, index: int
