@@ -35,7 +35,15 @@ from controller.obstacle import NO_OBSTACLE, ObstacleMeasurement, free_room, sen
 from controller.planner import Trajectory, cubic, plan_of
 from controller.safety import Limits, barrier, box, filtered, limits_of
 from protocol.config import ControllerConfig, RobotConfig
-from protocol.geometry import EllipticCylinder, Section, distance, length, wrap_angle
+from protocol.geometry import (
+    EllipticCylinder,
+    Section,
+    distance,
+    length,
+    nearest_point,
+    to_local,
+    wrap_angle,
+)
 from protocol.kinematics import (
     ArmTrig,
     arm_trig,
@@ -443,6 +451,8 @@ def step(
         ops.where(waiting_next, stage.room, stage.room_before),
         ops.where(waiting_next, stage.clear_way, stage.clear_way_before),
         beyond,
+        law.obstacle,
+        ((tcp[0] + waited[0]) / 2.0, (tcp[1] + waited[1]) / 2.0),
     )
     min_distance = ops.min(measurement.d_left, measurement.d_right)
 
@@ -881,6 +891,8 @@ def approach_pull(
     room: Real,
     clear_way: Real,
     beyond: Real,
+    obstacle: Section,
+    midway: tuple[Real, Real],
 ) -> Real:
     """How far the final approach takes over from the blended command, 0..1: as far as the
     plan waits (1 - ``rate``), in the waited waypoint's free room (``depth``, :func:`_depth`)
@@ -896,7 +908,11 @@ def approach_pull(
     the way, by ``clear_way`` in full. Without this an arm carried just past a waypoint near
     the obstacle, outside its free room, was left to PT, which saw it ahead of a reference
     waiting short of the waypoint and crawled on at a share of a plan's speed that the wait
-    took to nothing: a stop, until the plan had nearly stopped.
+    took to nothing: a stop, until the plan had nearly stopped. Or those two discs cover it
+    with the one round the point ``midway`` between them (its clearance from ``obstacle``, the
+    inflated section): an arm carried 15 mm past a waypoint 8 mm from the obstacle, 7 mm from
+    it, had a way back along the obstacle that the two alone did not cover, and crawled away
+    until it stood (``edge_obstacle`` seed 5,000,000, 639 fuzzy).
     """
     in_room = (1.0 - rate) * depth
     return ops.branch(
@@ -907,18 +923,34 @@ def approach_pull(
         rate,
         in_room,
         away,
-        clearance + room - away,
+        (clearance, room),
         clear_way,
         beyond,
+        obstacle,
+        midway,
     )
 
 
 def _waiting_pull(
-    ops: Ops, rate: Real, in_room: Real, away: Real, covered: Real, clear_way: Real, beyond: Real
+    ops: Ops,
+    rate: Real,
+    in_room: Real,
+    away: Real,
+    free: tuple[Real, Real],
+    clear_way: Real,
+    beyond: Real,
+    obstacle: Section,
+    midway: tuple[Real, Real],
 ) -> Real:
     """:func:`approach_pull` where the plan all but waits for an arm within WAITING_REACH,
-    or past the waypoint (``covered``: by how much the two free discs cover the straight
-    way)."""
+    or past the waypoint (``free``: the radii of the free discs round the TCP and round the
+    waypoint)."""
+    clearance, room = free
+    midway_clearance = nearest_point(ops, obstacle, *to_local(obstacle, *midway))[0]
+    covered = ops.max(
+        clearance + room - away,
+        midway_clearance + ops.min(clearance, room) - away / 2.0,
+    )
     low, high = WAITING_REACH
     # Past the waypoint, the way to the plan's line there: the same as to the waypoint as
     # the arm comes past it, so the pull does not jump.

@@ -52,6 +52,10 @@ NO_REST = (0.0, 0.0, False)
 """PT's ``rest_ahead`` where the plan does not rest at the waypoint ahead."""
 NOT_PASSED = (0.0, 0.0)
 """PT's ``past_waypoint`` before the TCP has passed the waypoint the plan heads for."""
+_SECTION = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02).section()
+NO_MIDWAY = (_SECTION, (0.5 + _SECTION.a, 0.0))
+"""approach_pull's obstacle and a point midway on its boundary: the disc there covers
+nothing."""
 
 
 def test_tracking_on_the_plan_follows_it() -> None:
@@ -717,7 +721,9 @@ def test_final_approach_reaches_past_the_free_room_where_the_plan_waits_and_way_
 
     def pull(rate: float, away: float, clearance: float) -> float:
         return float(
-            approach_pull(SCALAR, rate, outside_room, away, clearance, room, clear_way, 0.0)
+            approach_pull(
+                SCALAR, rate, outside_room, away, clearance, room, clear_way, 0.0, *NO_MIDWAY
+            )
         )
 
     assert pull(0.0, near, 0.012) == pytest.approx(1.0)  # 12 + 8 - 10 >= clear_way: in full
@@ -727,7 +733,33 @@ def test_final_approach_reaches_past_the_free_room_where_the_plan_waits_and_way_
     assert 0.0 < pull(0.0, (near + WAITING_REACH[1]) / 2, 0.05) < 1.0
     assert pull(0.0, WAITING_REACH[1], 0.05) == 0.0  # from farther: PT brings it nearer first
     # In the free room the approach acts as far as the plan waits, clear way or not.
-    assert approach_pull(SCALAR, 0.25, 1.0, 0.001, 0.0, room, clear_way, 0.0) == pytest.approx(0.75)
+    in_room = approach_pull(SCALAR, 0.25, 1.0, 0.001, 0.0, room, clear_way, 0.0, *NO_MIDWAY)
+    assert in_room == pytest.approx(0.75)
+
+
+def test_final_approach_takes_the_way_back_along_the_obstacle_the_disc_midway_covers() -> None:
+    """An arm carried 15 mm past a waypoint 8 mm from the obstacle, 7 mm from it
+    (``edge_obstacle`` seed 5,000,000, 639 fuzzy): the discs round the two leave the middle
+    of the way back uncovered, but the obstacle is as far from the middle as from its ends,
+    and the final approach takes over; not where the middle is as near the obstacle as the
+    two discs leave it (a way that could cross the obstacle)."""
+    obstacle = EllipticCylinder(0.5, 0.0, 0.06, 0.06, 0.3, inflation=0.02).section()
+    edge = 0.5 + obstacle.a  # x of the inflated boundary, on the local x axis
+    room = clear_way = 0.008
+    away, clearance = 0.015, 0.007
+
+    def pull(midway_clearance: float) -> float:
+        midway = (edge + midway_clearance, 0.0)
+        return float(
+            approach_pull(
+                SCALAR, 0.0, 0.0, away, clearance, room, clear_way, away, obstacle, midway
+            )
+        )
+
+    assert clearance + room - away == pytest.approx(0.0)  # the two discs just meet
+    assert pull(0.0085) == pytest.approx(1.0)  # 7 + 8.5 - 7.5 >= clear_way: in full
+    assert 0.0 < pull(0.002) < 1.0  # covered by 1.5 mm: in part
+    assert pull(0.0004) == 0.0  # 7 + 0.4 < 7.5, half the way: a gap the way could cross
 
 
 def test_final_approach_takes_over_past_the_waited_waypoint_along_the_plans_line() -> None:
@@ -743,7 +775,9 @@ def test_final_approach_takes_over_past_the_waited_waypoint_along_the_plans_line
 
     def pull(off: float, beyond: float) -> float:
         away = math.hypot(off, beyond)
-        return float(approach_pull(SCALAR, 0.0, 0.0, away, 0.1, room, clear_way, beyond))
+        return float(
+            approach_pull(SCALAR, 0.0, 0.0, away, 0.1, room, clear_way, beyond, *NO_MIDWAY)
+        )
 
     assert pull(0.0, far) == pytest.approx(1.0)
     assert pull(low, far) == pytest.approx(1.0)
@@ -751,7 +785,8 @@ def test_final_approach_takes_over_past_the_waited_waypoint_along_the_plans_line
     assert pull(high + 0.001, far) == 0.0
     assert pull(0.0, -far) == 0.0
     assert pull(0.015, 1e-9) == pytest.approx(pull(0.015, -1e-9), abs=1e-6)
-    assert approach_pull(SCALAR, WAITING_RATE, 0.0, far, 0.1, room, clear_way, far) == 0.0
+    running = approach_pull(SCALAR, WAITING_RATE, 0.0, far, 0.1, room, clear_way, far, *NO_MIDWAY)
+    assert running == 0.0
 
 
 def test_the_height_loop_steering_to_a_waypoint_feeds_forward_none_of_the_plans_speed() -> None:

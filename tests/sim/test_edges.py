@@ -213,6 +213,17 @@ def test_an_arm_early_at_a_waypoint_goes_round_the_obstacle_on_the_side_open_to_
     _done_in_both_modes_without_a_stop(task)
 
 
+def test_an_arm_carried_past_a_waypoint_along_the_obstacle_is_brought_back_along_it() -> None:
+    """Edge_obstacle seed 5,000,000, 639 (spent): the fuzzy arm was carried 15 mm past
+    waypoint 1, which lies 8 mm from the inflated obstacle, and stood 7 mm from it, the plan
+    waiting short of the waypoint. The free discs round the arm and the waypoint just met, so
+    the way back was not judged clear; PT crawled on away from the waypoint until the arm
+    stood (margin 0.92). The disc midway covers it now, and the final approach brings the
+    arm back."""
+    task = generate_scenario_at(5_000_000, 639, family=Family.EDGE_OBSTACLE, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.EDGE_REACH, 861), (Family.WIDE, 864)])
 def test_an_arm_brought_out_past_the_waypoint_the_plan_waits_for_comes_back_to_it(
     family: Family, index: int
