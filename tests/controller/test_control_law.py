@@ -339,21 +339,9 @@ def test_a_side_kept_is_checked_again_when_asked_and_left_where_its_way_is_close
     tcp, goal = (-0.074, -0.5854, 0.296), (0.1601, -0.5705)
     measurement = measure(obstacle, tcp, goal, CONFIG.sensing_range)
     assert measurement.blocked
-    _, side = avoid_obstacle(
-        SCALAR,
-        CONFIG,
-        RobotConfig(),
-        obstacle.grown(CONFIG.ao_pass_margin).section(),
-        obstacle.section(),
-        measurement,
-        measurement.min_distance,
-        TURN_RIGHT,  # round the far side, away from the base
-        math.atan2(goal[1] - tcp[1], goal[0] - tcp[0]),
-        tcp[:2],
-        goal,
-        1.0,
-        check_again,
-    )
+    heading = math.atan2(goal[1] - tcp[1], goal[0] - tcp[0])
+    # TURN_RIGHT: round the far side, away from the base.
+    side = _side_chosen(obstacle, measurement, heading, tcp, goal, check_again, TURN_RIGHT)
     assert side == (TURN_LEFT if check_again else TURN_RIGHT)
 
 
@@ -364,9 +352,10 @@ def _side_chosen(
     tcp: tuple[float, float, float],
     goal: tuple[float, float],
     check_again: bool,
+    kept: int = 0,
 ) -> float:
-    """The side AO chooses afresh, its elbow down, round ``obstacle`` grown by the pass
-    margin."""
+    """The side AO takes, its elbow down, round ``obstacle`` grown by the pass margin:
+    afresh, or with the side ``kept`` from before."""
     _, chosen = avoid_obstacle(
         SCALAR,
         CONFIG,
@@ -375,7 +364,7 @@ def _side_chosen(
         obstacle.section(),
         measurement,
         measurement.min_distance,
-        0,
+        kept,
         heading,
         tcp[:2],
         goal,
