@@ -23,7 +23,8 @@ TURN_LEFT = 1
 TURN_RIGHT = -1
 PLANNED_REST_SPEED = 0.005
 """m/s: below this PT drops the crawl along the plan (AHEAD_SPEED_FRACTION) and the split
-along and across it, whose direction is not defined at a standstill."""
+along and across it, whose direction is not defined at a standstill; above, the crawl is never
+slower than this."""
 AHEAD_SPEED_FRACTION = 0.25
 """A TCP ahead of the moving plan slows down to this fraction of the planned speed."""
 BACKWARD_SPEED = 0.001
@@ -88,7 +89,9 @@ def plan_tracking(
     moves at its size (so an arm beside a plan that slows down or waits still closes the
     gap). Along, it is never below AHEAD_SPEED_FRACTION of the planned speed: a TCP ahead of
     the plan (AO may drive it faster than planned) lets the plan catch up at a crawl rather
-    than turning round, or standing still while the plan moves.
+    than turning round, or standing still while the plan moves. Nor below PLANNED_REST_SPEED:
+    a quarter of a plan slowing through a waypoint, turning 55 degrees, left an arm ahead of
+    it below the speed a stop counts from (edge_obstacle seed 4, 426, the hard switch).
 
     Once the TCP has passed the waypoint the plan heads for, ``past_waypoint`` gives the
     plan's own speed and the TCP's last commanded speed up to it (both 0 before the pass).
@@ -119,7 +122,7 @@ def plan_tracking(
     along_x, along_y = vx / divisor, vy / divisor
     lag = error_x * along_x + error_y * along_y
     offset = along_x * error_y - along_y * error_x
-    crawl = ops.max(AHEAD_SPEED_FRACTION * moving, kept)
+    crawl = ops.max(ops.max(AHEAD_SPEED_FRACTION * moving, PLANNED_REST_SPEED), kept)
     rest_x, rest_y, resting = rest_ahead
     to_rest = (rest_x - position[0]) * along_x + (rest_y - position[1]) * along_y
     crawl = ops.where(resting, ops.min(crawl, config.position_gain * to_rest), crawl)

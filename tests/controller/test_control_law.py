@@ -113,6 +113,34 @@ def test_tracking_ahead_of_the_plan_crawls_no_further_than_where_the_plan_comes_
     assert past.v == 0.0 and past.speed == pytest.approx(CONFIG.position_gain * 0.001)
 
 
+@pytest.mark.parametrize(
+    ("planned", "crawl"),
+    [
+        (PLANNED_REST_SPEED / AHEAD_SPEED_FRACTION + 0.001, AHEAD_SPEED_FRACTION * 0.021),
+        (PLANNED_REST_SPEED / AHEAD_SPEED_FRACTION - 0.001, PLANNED_REST_SPEED),
+        (PLANNED_REST_SPEED + 0.0001, PLANNED_REST_SPEED),
+    ],
+)
+def test_tracking_ahead_of_a_slow_plan_crawls_no_slower_than_a_plan_that_moves(
+    planned: float, crawl: float
+) -> None:
+    """An arm 5 cm ahead crawls at a quarter of the plan's speed down to PLANNED_REST_SPEED,
+    and at that speed below it: a quarter of a plan slowing through a waypoint left an arm
+    ahead of it below the stop speed (edge_obstacle seed 4, 426)."""
+    command = plan_tracking(
+        SCALAR,
+        CONFIG,
+        0.0,
+        (0.35, 0.0),
+        (0.3, 0.0),
+        (planned, 0.0),
+        (0.0, 0.0),
+        NO_REST,
+        NOT_PASSED,
+    )
+    assert command.v == pytest.approx(crawl)
+
+
 @pytest.mark.parametrize("rate", [0.0001, 0.05, 0.5, 1.0])
 def test_tracking_past_the_waypoint_crawls_at_a_share_of_the_plans_own_speed(rate: float) -> None:
     """The plan waited short of a waypoint the arm has now passed, and moves off at a rising
@@ -129,7 +157,8 @@ def test_tracking_past_the_waypoint_crawls_at_a_share_of_the_plans_own_speed(rat
         SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, NOT_PASSED
     )
     if 0.2 * rate >= PLANNED_REST_SPEED:
-        assert before.v == pytest.approx(AHEAD_SPEED_FRACTION * 0.2 * rate)
+        crawl = max(AHEAD_SPEED_FRACTION * 0.2 * rate, PLANNED_REST_SPEED)
+        assert before.v == pytest.approx(crawl)
     else:
         assert before.v == 0.0
         assert before.speed == pytest.approx(CONFIG.position_gain * 0.05 - 0.2 * rate)

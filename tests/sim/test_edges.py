@@ -203,6 +203,15 @@ def test_a_plan_bending_round_an_obstacle_the_straight_way_keeps_clear_of_is_don
     _done_in_both_modes_without_a_stop(task)
 
 
+def test_an_arm_ahead_of_a_plan_slowing_through_a_waypoint_crawls_on_above_the_stop_speed() -> None:
+    """Edge_obstacle seed 4, 426: the hard switch handed over an arm ahead of a plan slowing
+    through a waypoint and turning there; PT's crawl, a quarter of the plan's speed, turned
+    with the plan, and the arm stood (margin 0.71). The crawl is no slower than
+    PLANNED_REST_SPEED now."""
+    task = generate_scenario_at(4, 426, family=Family.EDGE_OBSTACLE)
+    _done_in_both_modes_without_a_stop(task)
+
+
 def test_an_arm_early_at_a_waypoint_goes_round_the_obstacle_on_the_side_open_to_the_next() -> None:
     """Outer seed 5,000,000, 518 (the fourth held-out part, spent): the arm passed waypoint 1
     ahead of the plan, beside an obstacle reaching out past the outer reach, and AO chose its
