@@ -40,8 +40,7 @@ from protocol.geometry import (
     Section,
     distance,
     length,
-    nearest_point,
-    to_local,
+    nearest_to,
     wrap_angle,
 )
 from protocol.kinematics import (
@@ -946,7 +945,7 @@ def _waiting_pull(
     or past the waypoint (``free``: the radii of the free discs round the TCP and round the
     waypoint)."""
     clearance, room = free
-    midway_clearance = nearest_point(ops, obstacle, *to_local(obstacle, *midway))[0]
+    midway_clearance = nearest_to(ops, obstacle, *midway)[0]
     covered = ops.max(
         clearance + room - away,
         midway_clearance + ops.min(clearance, room) - away / 2.0,

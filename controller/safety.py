@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 from controller.obstacle import ObstacleMeasurement
 from protocol.config import ControllerConfig, RobotConfig
-from protocol.geometry import Section, nearest_point, to_local
+from protocol.geometry import Section, nearest_to
 from protocol.kinematics import ArmTrig, planar_jacobian
 from protocol.ops import Mask, Ops, Real
 
@@ -235,8 +235,7 @@ def _near_barrier(
 def _plane_clearance(ops: Ops, section: Section, px: Real, py: Real) -> tuple[Real, Real, Real]:
     """The signed plane distance from (px, py) to ``section`` and the way to its nearest
     point."""
-    lx, ly = to_local(section, px, py)
-    clearance, nearest_x, nearest_y = nearest_point(ops, section, lx, ly)
+    clearance, nearest_x, nearest_y = nearest_to(ops, section, px, py)
     return clearance, nearest_x - px, nearest_y - py
 
 

@@ -124,7 +124,7 @@ class EllipticCylinder:
     def nearest_point(self, px: float, py: float) -> tuple[float, Point]:
         """Signed distance to the inflated section's boundary and the boundary point."""
         section = self.section()
-        distance, x, y = nearest_point(SCALAR, section, *to_local(section, px, py))
+        distance, x, y = nearest_to(SCALAR, section, px, py)
         return distance, (x, y)
 
     def clearance(self, px: float, py: float) -> float:
@@ -190,6 +190,12 @@ def nearest_point(ops: Ops, section: Section, lx: Real, ly: Real) -> tuple[Real,
     distance, cx, cy = ellipse_distance(ops, section.a, section.b, abs(lx), abs(ly))
     x, y = to_world(section, ops.copysign(cx, lx), ops.copysign(cy, ly))
     return distance, x, y
+
+
+def nearest_to(ops: Ops, section: Section, px: Real, py: Real) -> tuple[Real, Real, Real]:
+    """:func:`nearest_point` of the world point (px, py): its signed distance to the
+    section's boundary and the boundary point nearest to it."""
+    return nearest_point(ops, section, *to_local(section, px, py))
 
 
 def tangent_points(
