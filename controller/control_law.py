@@ -21,13 +21,16 @@ import math
 from typing import NamedTuple, Protocol
 
 from controller.behaviours import (
+    AHEAD_SPEED_FRACTION,
     BACKWARD_SPEED,
     PLANNED_REST_SPEED,
     Command,
     Tracking,
+    across_heading,
     aim_margin,
     avoid_obstacle,
     backward_tracking,
+    crawl_speed,
     plan_tracking,
 )
 from controller.coordination import Coordination, smoothstep, weights
@@ -430,6 +433,7 @@ def step(
     goal = _goal(ops, stage, progress, behind, tcp, to_next)
     heading = state.heading
     heading_cos, heading_sin = ops.cos(heading), ops.sin(heading)
+    left_x, left_y = -heading_sin, heading_cos  # across the heading, kept if it turns round
     measurement = sense(
         ops, law.obstacle, config.sensing_range, tcp, goal, (heading_cos, heading_sin)
     )
@@ -532,8 +536,20 @@ def step(
         heading_cos = ops.where(backward, -heading_cos, heading_cos)
         heading_sin = ops.where(backward, -heading_sin, heading_sin)
 
+    across = across_heading(
+        ops,
+        tracking,
+        crawl_speed(ops, rate * plan_speed),
+        k_t / total,
+        blended.v,
+    )
     vx, vy = approach_limited(
-        ops, config, blended.v * heading_cos, blended.v * heading_sin, measurement
+        ops,
+        config,
+        blended.v * heading_cos + across * left_x,
+        blended.v * heading_sin + across * left_y,
+        measurement,
+        (reference_velocity[0], reference_velocity[1]),
     )
     omega = blended.omega
     if ops.any(pull > 0.0):
@@ -1012,11 +1028,17 @@ def capped_along(
 
 
 def approach_limited(
-    ops: Ops, config: ControllerConfig, vx: Real, vy: Real, measurement: ObstacleMeasurement
+    ops: Ops,
+    config: ControllerConfig,
+    vx: Real,
+    vy: Real,
+    measurement: ObstacleMeasurement,
+    planned: tuple[Real, Real],
 ) -> tuple[Real, Real]:
     """The TCP's planar velocity without what moves it towards the obstacle's margin faster
-    than ``approach_rate`` times its clearance (or at all, once inside the margin); motion
-    along the obstacle is kept.
+    than ``approach_rate`` times its clearance less the safety filter's ``safety_buffer`` (or
+    at all, once within the buffer); motion along the obstacle is kept, and some of what is
+    cut turns into it.
 
     Eq. 30 blends turn rates as well as speeds: where PT and AO pull the heading opposite
     ways, the heading turns slowly while both speeds carry the arm on, and the heading can
@@ -1024,6 +1046,17 @@ def approach_limited(
     exponentially, and the arm slides along the margin until the heading has turned. (Cut
     along the heading instead, the arm stalled where the two turn rates cancelled.) Both
     modes have it: it is a limit on the output, like the joint limits, not part of the blend.
+
+    It aims at the floor the safety filter keeps: aimed at the margin itself, it left the
+    arm moving in at 5 mm/s a millimetre out, and the filter's push back, in joint rates,
+    took most of the motion along the obstacle as well. And what is cut turns into motion
+    along the obstacle the way the plan goes (``planned``: the reference's planar velocity),
+    up to PT's crawl (AHEAD_SPEED_FRACTION of the plan's speed, no slower than
+    PLANNED_REST_SPEED) that way: an arm whose way pointed straight into the margin (PT's,
+    back to a plan that bends through it) stood there while the plan moved on
+    (``edge_obstacle`` seed 4, 431 and seed 6,000,000, 877, the hard switch). In full where
+    the plan goes along the obstacle at that fraction of its speed or more; where it heads
+    more nearly straight in, the share it goes along, and none where it heads straight in.
     """
     to_x, to_y = measurement.to_nearest
     gap = length(ops, to_x, to_y)
@@ -1033,15 +1066,25 @@ def approach_limited(
     clearance = measurement.clearance
     divisor = ops.where(valid, gap, 1.0)
     inside = clearance < 0.0
+    nx = ops.where(inside, -to_x, to_x) / divisor
+    ny = ops.where(inside, -to_y, to_y) / divisor
     capped_x, capped_y = capped_along(
-        ops,
-        vx,
-        vy,
-        ops.where(inside, -to_x, to_x) / divisor,
-        ops.where(inside, -to_y, to_y) / divisor,
-        config.approach_rate * ops.max(clearance, 0.0),
+        ops, vx, vy, nx, ny, config.approach_rate * ops.max(clearance - config.safety_buffer, 0.0)
     )
-    return ops.where(valid, capped_x, vx), ops.where(valid, capped_y, vy)
+    cut = (vx - capped_x) * nx + (vy - capped_y) * ny
+    planned_along = planned[1] * nx - planned[0] * ny
+    way = ops.where(planned_along >= 0.0, 1.0, -1.0)
+    along_x, along_y = -ny * way, nx * way  # along the obstacle, the way the plan goes
+    planned_speed = length(ops, planned[0], planned[1])
+    share = ops.clip(
+        abs(planned_along) / ops.max(AHEAD_SPEED_FRACTION * planned_speed, 1e-9), 0.0, 1.0
+    )
+    slide = share * crawl_speed(ops, planned_speed)
+    slid = ops.clip(slide - (capped_x * along_x + capped_y * along_y), 0.0, cut * share)
+    return (
+        ops.where(valid, capped_x + slid * along_x, vx),
+        ops.where(valid, capped_y + slid * along_y, vy),
+    )
 
 
 def reach_limited(

@@ -9,10 +9,14 @@ import numpy as np
 import pytest
 
 from controller.behaviours import (
+    ACROSS_BAND,
     AHEAD_SPEED_FRACTION,
     PLANNED_REST_SPEED,
+    REST_LINE_NEARER,
     TURN_LEFT,
     TURN_RIGHT,
+    Tracking,
+    across_heading,
     avoid_obstacle,
     backward_tracking,
     plan_tracking,
@@ -111,6 +115,64 @@ def test_tracking_ahead_of_the_plan_crawls_no_further_than_where_the_plan_comes_
         NOT_PASSED,
     )
     assert past.v == 0.0 and past.speed == pytest.approx(CONFIG.position_gain * 0.001)
+
+
+@pytest.mark.parametrize(
+    ("nearer", "share"),
+    [
+        (-0.001, 0.0),  # nearer the reference: its line
+        (0.0, 0.0),
+        (REST_LINE_NEARER / 2.0, 0.5),
+        (REST_LINE_NEARER, 1.0),  # the waypoint's line alone from here on
+        (REST_LINE_NEARER + 0.04, 1.0),
+    ],
+)
+def test_tracking_nearer_the_waypoint_the_plan_rests_at_measures_its_way_across_from_there(
+    nearer: float, share: float
+) -> None:
+    """The plan (at 0.3, 0.2 m/s along +x) rests at a waypoint 10 mm to the left of its line
+    (it bends on to it); the arm, on the reference's line, 5 mm short of the waypoint along
+    the plan and ``nearer`` nearer it than the reference. Its way across is measured from the
+    waypoint's line in full from REST_LINE_NEARER nearer: from the reference's line alone,
+    an arm come early crawled beside the waypoint (edge_obstacle seed 7,000,000, 484)."""
+    short = 0.005
+    arm = (0.3 + short + nearer, 0.0)
+    rest = (arm[0] + short, 0.01, True)
+    tracking = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), rest, NOT_PASSED
+    )
+    crawl = min(AHEAD_SPEED_FRACTION * 0.2, CONFIG.position_gain * short)
+    along = max(0.2 - CONFIG.position_gain * (arm[0] - 0.3), crawl)
+    across = CONFIG.position_gain * share * 0.01
+    assert tracking.error == pytest.approx(math.atan2(across, along))
+    assert tracking.speed == pytest.approx(math.hypot(along, across))
+
+
+@pytest.mark.parametrize(
+    ("error", "share", "moving", "across"),
+    [
+        (0.0, 1.0, 0.0, 0.0),
+        (math.asin(ACROSS_BAND), 1.0, 0.0, 0.0),  # the band's edge
+        (math.asin(ACROSS_BAND + 0.02), 1.0, 0.0, 0.028 * (ACROSS_BAND + 0.02) * 0.01),
+        (math.pi / 2.0, 1.0, 0.0, 0.01),  # 90 degrees off: all of it, up to the crawl
+        (-math.pi / 2.0, 1.0, 0.0, -0.01),  # to the right
+        (math.pi / 2.0, 0.5, 0.0, 0.005),  # PT's share of the blend
+        (math.pi / 2.0, 1.0, 0.006, 0.008),  # what the speed along the heading lacks
+        (math.pi / 2.0, 1.0, -0.006, 0.008),  # the same, backwards
+        (math.pi / 2.0, 1.0, 0.01, 0.0),  # already as fast: nothing across
+        (math.pi - math.asin(ACROSS_BAND), 1.0, 0.0, 0.0),  # a way behind: backwards instead
+    ],
+)
+def test_the_tcp_goes_pt_way_across_a_heading_90_degrees_off_it_as_fast_as_it_lacks(
+    error: float, share: float, moving: float, across: float
+) -> None:
+    """Where PT's way lies about 90 degrees off the heading, the unicycle's speed along it is
+    all but nothing; the TCP goes across the heading what ``moving`` (the blend's speed
+    along the heading) lacks of PT's share of its speed, up to the crawl (here 10 mm/s of
+    PT's 30), from |sin| of the error ACROSS_BAND in (a smoothstep: at 0.1 of the way in,
+    0.028 of it)."""
+    tracking = Tracking(0.0, 0.0, 0.03, error, 0.0)
+    assert across_heading(SCALAR, tracking, 0.01, share, moving) == pytest.approx(across, abs=1e-12)
 
 
 @pytest.mark.parametrize(
@@ -563,23 +625,78 @@ def assert_cut_to(
         assert limited_x * along_x + limited_y * along_y == pytest.approx(along)
 
 
-@pytest.mark.parametrize("clearance", [0.004, 0.0005, -0.003])
-def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
-    clearance: float,
-) -> None:
-    scenario = load_scenario("reference")
-    obstacle = scenario.obstacle
+def _off_the_long_end(clearance: float) -> tuple[ObstacleMeasurement, float]:
+    """The reference scenario's obstacle measured from a TCP ``clearance`` off its long end,
+    and the angle pointing from there into it."""
+    obstacle = load_scenario("reference").obstacle
     assert obstacle is not None
     out_x, out_y = math.cos(obstacle.yaw), math.sin(obstacle.yaw)  # outward, off the long end
     reach = obstacle.semi_axes[0] + clearance
     tcp = (obstacle.x + reach * out_x, obstacle.y + reach * out_y, obstacle.height / 2.0)
     measurement = measure(obstacle, tcp, (0.0, 0.0), CONFIG.sensing_range, math.pi)
     assert measurement.clearance == pytest.approx(clearance)
+    return measurement, obstacle.yaw + math.pi
+
+
+@pytest.mark.parametrize(
+    "clearance", [0.004, CONFIG.safety_buffer + 0.0005, CONFIG.safety_buffer, 0.0005, -0.003]
+)
+def test_the_tcp_moves_towards_the_margin_no_faster_than_its_clearance_allows(
+    clearance: float,
+) -> None:
+    """Towards the margin at ``approach_rate`` times the clearance less the safety filter's
+    buffer, and not at all from the buffer in, where the filter lets nothing in either."""
+    measurement, towards_it = _off_the_long_end(clearance)
     assert_cut_to(
-        lambda vx, vy: approach_limited(SCALAR, CONFIG, vx, vy, measurement),
-        obstacle.yaw + math.pi,  # towards the obstacle
-        CONFIG.approach_rate * max(clearance, 0.0),
+        lambda vx, vy: approach_limited(SCALAR, CONFIG, vx, vy, measurement, (0.0, 0.0)),
+        towards_it,
+        CONFIG.approach_rate * max(clearance - CONFIG.safety_buffer, 0.0),
     )
+
+
+SLIDE = AHEAD_SPEED_FRACTION * 0.2
+"""The slide along the obstacle of a plan going along it at 0.2 m/s."""
+
+
+@pytest.mark.parametrize(
+    ("towards", "along", "planned", "along_after"),
+    [
+        (0.1, 0.0, (0.2, 0.0), SLIDE),  # straight in: slides the plan's way
+        (0.1, 0.0, (-0.2, 0.0), -SLIDE),  # the other way along, with the plan
+        (0.1, 0.01, (0.2, 0.0), SLIDE),  # up to the plan's share, not beyond
+        (0.1, 0.06, (0.2, 0.0), 0.06),  # already faster that way: left alone
+        (0.1, -0.03, (0.2, 0.0), SLIDE),  # against the plan: turned its way
+        (0.02, 0.0, (0.2, 0.0), 0.02 - CONFIG.approach_rate * 0.003),  # no more than is cut
+        (0.01, 0.0, (0.2, 0.0), 0.0),  # nothing cut, nothing slid
+        (0.1, 0.0, (0.01, 0.0), PLANNED_REST_SPEED),  # a slow plan: the crawl's floor
+        (0.1, 0.0, (SLIDE / 2.0, math.sqrt(0.04 - SLIDE**2 / 4.0)), SLIDE / 2.0),  # half in
+        (0.1, -0.03, (0.0, 0.2), -0.03),  # a plan heading straight in: no way along
+    ],
+)
+def test_what_the_approach_limit_cuts_slides_the_arm_the_way_the_plan_goes_along_the_obstacle(
+    towards: float, along: float, planned: tuple[float, float], along_after: float
+) -> None:
+    """Edge_obstacle seed 4, 431: the hard switch handed PT an arm 1 mm from the margin,
+    whose way back to a plan bending through the margin pointed straight into it; with what
+    moved it in cut, it stood while the plan moved on. What is cut now moves it along the
+    obstacle the way the plan goes (``planned``: along the obstacle, into it), at PT's crawl:
+    AHEAD_SPEED_FRACTION of the plan's speed, no slower than PLANNED_REST_SPEED; in part
+    where the plan goes along it at less than that fraction of its speed, the share it does
+    (half, here)."""
+    measurement, towards_it = _off_the_long_end(0.004)  # 3 mm outside the buffer
+    in_x, in_y = math.cos(towards_it), math.sin(towards_it)
+    along_x, along_y = -in_y, in_x
+    vx, vy = approach_limited(
+        SCALAR,
+        CONFIG,
+        towards * in_x + along * along_x,
+        towards * in_y + along * along_y,
+        measurement,
+        (planned[0] * along_x + planned[1] * in_x, planned[0] * along_y + planned[1] * in_y),
+    )
+    allowed = CONFIG.approach_rate * (0.004 - CONFIG.safety_buffer)
+    assert vx * in_x + vy * in_y == pytest.approx(min(towards, allowed))
+    assert vx * along_x + vy * along_y == pytest.approx(along_after)
 
 
 @pytest.mark.parametrize("gap", [0.004, 0.0005, 0.0])
@@ -827,7 +944,7 @@ def test_the_height_loop_steering_to_a_waypoint_feeds_forward_none_of_the_plans_
 
 def test_without_an_obstacle_in_reach_the_velocity_is_left_alone() -> None:
     far = measure(None, (0.3, 0.0, 0.2), (0.5, 0.0), CONFIG.sensing_range)
-    assert approach_limited(SCALAR, CONFIG, 0.1, -0.2, far) == (0.1, -0.2)
+    assert approach_limited(SCALAR, CONFIG, 0.1, -0.2, far, (0.2, 0.0)) == (0.1, -0.2)
 
 
 def test_a_runs_law_takes_the_packaged_rule_base_read_once(monkeypatch: pytest.MonkeyPatch) -> None:

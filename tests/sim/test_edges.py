@@ -17,7 +17,7 @@ from controller.task_rules import check_task, rule_of
 from protocol.errors import ConfigError
 from protocol.scenario import Mode, Scenario
 from sim.batch import simulate_batch
-from sim.generator import Family, generate_scenario_at
+from sim.generator import Family, generate_scenario_at, is_held_out
 from sim.measures import WAYPOINT_TOLERANCE
 from sim.simulation import simulate
 from sim.study.refusals import Check, brute_force
@@ -230,6 +230,48 @@ def test_an_arm_carried_past_a_waypoint_along_the_obstacle_is_brought_back_along
     stood (margin 0.92). The disc midway covers it now, and the final approach brings the
     arm back."""
     task = generate_scenario_at(5_000_000, 639, family=Family.EDGE_OBSTACLE, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
+@pytest.mark.parametrize(("seed", "index"), [(4, 431), (6_000_000, 877), (1, 313)])
+def test_an_arm_whose_way_points_into_the_obstacles_margin_slides_along_it(
+    seed: int, index: int
+) -> None:
+    """Edge_obstacle seed 4, 431 and seed 6,000,000, 877 (spent), the hard switch: handed to
+    PT 1 mm from the margin, ahead of a plan bending through it, the arm's way back to the
+    plan pointed straight in; the approach limit cut that, aimed at the margin while the
+    safety filter holds the arm at its buffer, and the filter's push back took the rest. The
+    arm stood while the plan moved on (margins 0.35 and 0.00). Seed 1, 313: handed between
+    AO and PT at 7-12 mm, it stood while its heading turned (0.66). The limit now aims at
+    the filter's floor, and turns what it cuts into sliding the way the plan goes."""
+    held_out = is_held_out(Family.EDGE_OBSTACLE, seed)
+    task = generate_scenario_at(seed, index, family=Family.EDGE_OBSTACLE, held_out=held_out)
+    _done_in_both_modes_without_a_stop(task)
+
+
+@pytest.mark.parametrize("index", [484, 727])
+def test_an_arm_early_beside_a_waypoint_the_plan_rests_at_keeps_moving_to_it(index: int) -> None:
+    """Edge_obstacle seed 7,000,000 (spent), fuzzy: 50 mm ahead of a plan bending on to the
+    waypoint where it rests, the arm measured its way across from the reference's line and
+    crawled about 9 mm beside the waypoint, until it stood where that line swung across it
+    (margins 0.00 and 0.40). It measures from the waypoint's line now, nearer the waypoint
+    than the reference."""
+    task = generate_scenario_at(7_000_000, index, family=Family.EDGE_OBSTACLE, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
+@pytest.mark.parametrize(
+    ("seed", "index"), [(7_000_000, 742), (7_000_000, 862), (6_000_000, 718), (6_000_000, 931)]
+)
+def test_an_arm_whose_way_swings_round_faster_than_its_heading_goes_that_way_as_it_turns(
+    seed: int, index: int
+) -> None:
+    """Edge_obstacle seeds 7,000,000 and 6,000,000 (spent): PT's way swung to 90 degrees off
+    the heading, faster than the heading turned (the reference passing the arm, a way closing
+    on a waypoint from the side), and the unicycle, whose speed falls as the cosine of that,
+    stood while it turned (742 fuzzy; 862, 718 and 931 the hard switch). The TCP goes PT's
+    way across the heading now, up to the crawl."""
+    task = generate_scenario_at(seed, index, family=Family.EDGE_OBSTACLE, held_out=True)
     _done_in_both_modes_without_a_stop(task)
 
 
