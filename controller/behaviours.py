@@ -143,10 +143,11 @@ def plan_tracking(
     crawl = ops.max(crawl_speed(ops, moving), kept)
     rest_x, rest_y, resting = rest_ahead
     to_rest = (rest_x - position[0]) * along_x + (rest_y - position[1]) * along_y
-    from_rest = along_x * (rest_y - position[1]) - along_y * (rest_x - position[0])
     nearer = -lag - abs(to_rest)
-    share = ops.where(resting, ops.clip(nearer / REST_LINE_NEARER, 0.0, 1.0), 0.0)
-    offset = offset + share * (from_rest - offset)
+    if ops.any(resting & (nearer > 0.0)):
+        from_rest = along_x * (rest_y - position[1]) - along_y * (rest_x - position[0])
+        share = ops.where(resting, ops.clip(nearer / REST_LINE_NEARER, 0.0, 1.0), 0.0)
+        offset = offset + share * (from_rest - offset)
     crawl = ops.where(resting, ops.min(crawl, config.position_gain * to_rest), crawl)
     along = ops.max(planned_speed + config.position_gain * lag, crawl)
     across = config.position_gain * offset
@@ -186,6 +187,8 @@ def across_heading(ops: Ops, tracking: Tracking, crawl: Real, share: Real, movin
     scenario.
     """
     sin_error = ops.sin(tracking.error)
+    if not ops.any(abs(sin_error) > ACROSS_BAND):
+        return 0.0
     band = smoothstep(ops, (abs(sin_error) - ACROSS_BAND) / (1.0 - ACROSS_BAND))
     wanted = share * band * abs(sin_error) * ops.min(tracking.speed, crawl)
     lacking = ops.max(wanted * wanted - moving * moving, 0.0)

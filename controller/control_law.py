@@ -1072,6 +1072,8 @@ def approach_limited(
         ops, vx, vy, nx, ny, config.approach_rate * ops.max(clearance - config.safety_buffer, 0.0)
     )
     cut = (vx - capped_x) * nx + (vy - capped_y) * ny
+    if not ops.any(valid & (cut > 0.0)):
+        return ops.where(valid, capped_x, vx), ops.where(valid, capped_y, vy)
     planned_along = planned[1] * nx - planned[0] * ny
     way = ops.where(planned_along >= 0.0, 1.0, -1.0)
     along_x, along_y = -ny * way, nx * way  # along the obstacle, the way the plan goes
