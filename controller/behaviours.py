@@ -31,6 +31,13 @@ REST_LINE_NEARER = 0.01
 """m: how much nearer, along the plan, the waypoint where the plan comes to rest must be to
 the TCP than the reference is for PT to measure the way across from that waypoint's line
 alone (:func:`plan_tracking`)."""
+STEER_LOOKAHEAD = 0.002
+"""m: the least distance along the plan over which PT steers back onto it
+(:func:`plan_tracking`)."""
+REST_HEADING = 0.7
+"""The cosine of the angle (about 45 degrees) within which the plan's way must point at the
+waypoint it comes to rest at, from the reference, for PT to measure the arm's way to it along
+that way (:func:`plan_tracking`)."""
 ACROSS_BAND = 0.8
 """|sin| of PT's heading error from which the TCP goes PT's way across the heading directly
 (:func:`across_heading`)."""
@@ -124,8 +131,16 @@ def plan_tracking(
     through the waypoint (in full from REST_LINE_NEARER nearer): measured from the
     reference's line, 50 mm back where the plan bends on to the waypoint, an arm that had
     come early crawled about 9 mm beside the waypoint, and stood where that line swung
-    across it (``edge_obstacle`` seed 7,000,000, 484 and 727). The plan's own
-    turn rate is fed forward. Where the plan (nearly) stands still the wanted velocity is the
+    across it (``edge_obstacle`` seed 7,000,000, 484 and 727). A rest counts only where the
+    plan's way from the reference points at the waypoint (within REST_HEADING): measured along
+    the way of a plan that bends on to a waypoint 28 mm to the side, an arm beside the
+    reference was past it, and turned back (``edge_obstacle`` seed 8,000,000, 61).
+
+    The TCP steers back onto the plan over no less than STEER_LOOKAHEAD along it: over the
+    crawl's own reach (``position_gain`` times the way across against the crawl, 0.5 mm at 5
+    mm/s), a fraction of a millimetre across swung the way 60-150 degrees, and the heading
+    chased it while the arm stood (``edge_obstacle`` seed 8,000,000, 511 and 61). The plan's
+    own turn rate is fed forward. Where the plan (nearly) stands still the wanted velocity is the
     same sum, steered to as a whole: aiming at the planned point alone dropped the plan's last
     few mm/s as it came to a rest or left one, and an arm on its reference slowed to a stop
     there.
@@ -142,17 +157,30 @@ def plan_tracking(
     offset = along_x * error_y - along_y * error_x
     crawl = ops.max(crawl_speed(ops, moving), kept)
     rest_x, rest_y, resting = rest_ahead
-    to_rest = (rest_x - position[0]) * along_x + (rest_y - position[1]) * along_y
-    nearer = -lag - abs(to_rest)
-    if ops.any(resting & (nearer > 0.0)):
-        from_rest = along_x * (rest_y - position[1]) - along_y * (rest_x - position[0])
-        share = ops.where(resting, ops.clip(nearer / REST_LINE_NEARER, 0.0, 1.0), 0.0)
-        offset = offset + share * (from_rest - offset)
-    crawl = ops.where(resting, ops.min(crawl, config.position_gain * to_rest), crawl)
+    if ops.any(resting):
+        # Only a waypoint the plan heads for: one off to the side, where it bends on to it,
+        # is not level with an arm just because the line along the plan's way passes it.
+        ahead_x, ahead_y = rest_x - reference[0], rest_y - reference[1]
+        resting = resting & (
+            ahead_x * along_x + ahead_y * along_y >= REST_HEADING * length(ops, ahead_x, ahead_y)
+        )
+        to_rest = (rest_x - position[0]) * along_x + (rest_y - position[1]) * along_y
+        nearer = -lag - abs(to_rest)
+        if ops.any(resting & (nearer > 0.0)):
+            from_rest = along_x * (rest_y - position[1]) - along_y * (rest_x - position[0])
+            share = ops.where(resting, ops.clip(nearer / REST_LINE_NEARER, 0.0, 1.0), 0.0)
+            offset = offset + share * (from_rest - offset)
+        crawl = ops.where(resting, ops.min(crawl, config.position_gain * to_rest), crawl)
     along = ops.max(planned_speed + config.position_gain * lag, crawl)
     across = config.position_gain * offset
     speed = ops.min(length(ops, along, across), config.speed_max)
-    target = ops.atan2(vy, vx) + ops.atan2(across, along)
+    # Steered back onto the plan over no less than STEER_LOOKAHEAD, whichever way along (the
+    # way along is below nothing only where a crawl ended at a rest points back to it).
+    least = config.position_gain * STEER_LOOKAHEAD
+    steered = ops.max(along, least)
+    if ops.any(resting):
+        steered = ops.where(along >= 0.0, steered, ops.min(along, -least))
+    target = ops.atan2(vy, vx) + ops.atan2(across, steered)
     ax, ay = reference_acceleration
     feedforward = (vx * ay - vy * ax) / (divisor * divisor)
     error = wrap_angle(target - heading)

@@ -116,6 +116,14 @@ TURN_APART = 0.5
 """How far the blended command and the final approach's velocity point apart (the cosine of
 the angle between them, negated) where the final approach takes over by turning the way
 (:func:`turned_towards`) in full: from 90 degrees it starts to, from 120 it does in full."""
+TURN_KEEP = 5.0 * math.pi / 6.0
+"""rad: how far apart (up to half a turn) the two ways :func:`turned_towards` turns between
+must point for the way to turn round the side the arm last moved to, not the short way."""
+TURN_ASIDE = 0.25
+"""|sin| of the angle from the way on to the velocity last commanded from which that velocity
+lies to one side of it, for :func:`turned_towards` (all but along it, the side it lay on was
+a rounding's, and the way, turned round it, cancelled the two added: edge_obstacle seed
+6,000,000, 931, the hard switch)."""
 TURN_SHARE = 0.3
 """How far, there, the velocity goes from the two added as vectors to the way turned at a
 speed between theirs. Added, they all but cancelled: an arm that had gone by a waypoint a few
@@ -439,11 +447,9 @@ def step(
     )
     # How far the TCP is past the waypoint the plan waits for (not passed), along the plan's
     # way at the reference (:func:`approach_pull`).
-    beyond = ops.where(
-        plan_speed > 0.0,
-        ((tcp[0] - waited[0]) * velocity[0] + (tcp[1] - waited[1]) * velocity[1])
-        / ops.where(plan_speed > 0.0, plan_speed, 1.0),
-        0.0,
+    # (Where the plan stands still, its velocity is nothing and so is this.)
+    beyond = ((tcp[0] - waited[0]) * velocity[0] + (tcp[1] - waited[1]) * velocity[1]) / ops.where(
+        plan_speed > 0.0, plan_speed, 1.0
     )
     pull = approach_pull(
         ops,
@@ -562,7 +568,8 @@ def step(
             tcp,
             ops.where(waiting_next, stage.loop_radius, stage.loop_radius_before),
         )
-        vx, vy = turned_towards(ops, (vx, vy), (approach_x, approach_y), pull)
+        last = tool_velocity(law.robot, trig, state.previous[0], state.previous[1])
+        vx, vy = turned_towards(ops, (vx, vy), (approach_x, approach_y), pull, last)
         # On a loop the heading turns with the TCP's way round, so that it points along the
         # plan, not back at the waiting reference, when the arm comes onto the waypoint.
         omega = ops.branch(
@@ -577,7 +584,15 @@ def step(
             approach_x,
             approach_y,
         )
-    vx, vy = reach_limited(ops, config.reach_rate, law.full_reach, vx, vy, tcp)
+    vx, vy = reach_limited(
+        ops,
+        config.reach_rate,
+        law.full_reach,
+        vx,
+        vy,
+        tcp,
+        (reference_velocity[0], reference_velocity[1]),
+    )
     lead = height_lead(ops, waiting_next, to_next, reference_to_next)
     vz = height_rate(
         ops,
@@ -849,13 +864,22 @@ def _loop(
 
 
 def turned_towards(
-    ops: Ops, start: tuple[Real, Real], end: tuple[Real, Real], share: Real
+    ops: Ops,
+    start: tuple[Real, Real],
+    end: tuple[Real, Real],
+    share: Real,
+    last: tuple[Real, Real],
 ) -> tuple[Real, Real]:
     """``share`` of the way from planar velocity ``start`` to ``end``: the two added as
     vectors where they point the same way within 90 degrees; where they point apart, up to
     TURN_SHARE of the way from that to the way turned and the speed changed apart (in full
     from TURN_APART), so that an arm pulled back the way it came swings round instead of
-    standing while the two cancel."""
+    standing while the two cancel.
+
+    Where they point all but opposite (more than TURN_KEEP apart), the way turns round the
+    side the velocity last commanded, ``last``, lies on, where it lies to a side (TURN_ASIDE):
+    the short way round changes side from one tick to the next there, and the arm's way
+    flipped with it, through a stop (``user`` seed 8,000,000, 999, the hard switch)."""
     added_x = start[0] + share * (end[0] - start[0])
     added_y = start[1] + share * (end[1] - start[1])
     start_speed = length(ops, start[0], start[1])
@@ -874,6 +898,7 @@ def turned_towards(
         share,
         TURN_SHARE * apart,
         (added_x, added_y),
+        last,
     )
 
 
@@ -885,11 +910,17 @@ def _turned(
     share: Real,
     turning: Real,
     added: tuple[Real, Real],
+    last: tuple[Real, Real],
 ) -> tuple[Real, Real]:
     """:func:`turned_towards` where the two point apart: ``turning`` of the way from their
     sum, ``added``, to the way turned."""
     start_angle = ops.atan2(start[1], start[0])
-    angle = start_angle + share * wrap_angle(ops.atan2(end[1], end[0]) - start_angle)
+    turn = wrap_angle(ops.atan2(end[1], end[0]) - start_angle)
+    last_side = start[0] * last[1] - start[1] * last[0]  # > 0: last lies to start's left
+    aside = abs(last_side) > TURN_ASIDE * speeds[0] * length(ops, last[0], last[1])
+    other_side = (abs(turn) > TURN_KEEP) & (last_side * turn < 0.0) & aside
+    turn = ops.where(other_side, turn - ops.where(turn > 0.0, 2.0 * math.pi, -2.0 * math.pi), turn)
+    angle = start_angle + share * turn
     speed = speeds[0] + share * (speeds[1] - speeds[0])
     return (
         added[0] + turning * (speed * ops.cos(angle) - added[0]),
@@ -1018,13 +1049,38 @@ def height_lead(ops: Ops, ahead: Mask, to_next: Real, reference_to_next: Real) -
 
 
 def capped_along(
-    ops: Ops, vx: Real, vy: Real, nx: Real, ny: Real, allowed: Real
+    ops: Ops, vx: Real, vy: Real, nx: Real, ny: Real, allowed: Real, planned: tuple[Real, Real]
 ) -> tuple[Real, Real]:
-    """``(vx, vy)`` with its part along the unit vector ``(nx, ny)`` cut to at most
-    ``allowed``; the rest of it kept (the limits on the output towards a boundary)."""
+    """``(vx, vy)`` with its part along the unit vector ``(nx, ny)`` (towards a boundary) cut
+    to at most ``allowed``, the rest of it kept, and some of what is cut turned into motion
+    along the boundary the way the plan goes (``planned``: the reference's planar velocity).
+
+    An arm whose way pointed straight at a boundary (PT's, back to a plan that bends through
+    the obstacle's margin; AO's, tilted out towards full reach) stood there while the plan
+    moved on, or slid along it the wrong way, into the corner between the two. So what is
+    cut slides it, up to PT's crawl (AHEAD_SPEED_FRACTION of the plan's speed, no slower than
+    PLANNED_REST_SPEED) the plan's way along: in full where the plan goes along the boundary
+    at that fraction of its speed or more; where it heads more nearly straight at it, the
+    share it goes along, and none where it heads straight at it.
+    """
     excess = vx * nx + vy * ny - allowed
     cut = excess > 0.0
-    return ops.where(cut, vx - excess * nx, vx), ops.where(cut, vy - excess * ny, vy)
+    if not ops.any(cut):
+        return vx, vy
+    capped_x = ops.where(cut, vx - excess * nx, vx)
+    capped_y = ops.where(cut, vy - excess * ny, vy)
+    planned_along = planned[1] * nx - planned[0] * ny
+    way = ops.where(planned_along >= 0.0, 1.0, -1.0)
+    along_x, along_y = -ny * way, nx * way  # along the boundary, the way the plan goes
+    planned_speed = length(ops, planned[0], planned[1])
+    share = ops.clip(
+        abs(planned_along) / ops.max(AHEAD_SPEED_FRACTION * planned_speed, 1e-9), 0.0, 1.0
+    )
+    slide = share * crawl_speed(ops, planned_speed)
+    slid = ops.clip(
+        slide - (capped_x * along_x + capped_y * along_y), 0.0, ops.max(excess, 0.0) * share
+    )
+    return capped_x + slid * along_x, capped_y + slid * along_y
 
 
 def approach_limited(
@@ -1037,8 +1093,8 @@ def approach_limited(
 ) -> tuple[Real, Real]:
     """The TCP's planar velocity without what moves it towards the obstacle's margin faster
     than ``approach_rate`` times its clearance less the safety filter's ``safety_buffer`` (or
-    at all, once within the buffer); motion along the obstacle is kept, and some of what is
-    cut turns into it.
+    at all, once within the buffer); motion along the obstacle is kept, and what is cut
+    slides the arm along it the way the plan goes (``capped_along``).
 
     Eq. 30 blends turn rates as well as speeds: where PT and AO pull the heading opposite
     ways, the heading turns slowly while both speeds carry the arm on, and the heading can
@@ -1049,14 +1105,9 @@ def approach_limited(
 
     It aims at the floor the safety filter keeps: aimed at the margin itself, it left the
     arm moving in at 5 mm/s a millimetre out, and the filter's push back, in joint rates,
-    took most of the motion along the obstacle as well. And what is cut turns into motion
-    along the obstacle the way the plan goes (``planned``: the reference's planar velocity),
-    up to PT's crawl (AHEAD_SPEED_FRACTION of the plan's speed, no slower than
-    PLANNED_REST_SPEED) that way: an arm whose way pointed straight into the margin (PT's,
-    back to a plan that bends through it) stood there while the plan moved on
-    (``edge_obstacle`` seed 4, 431 and seed 6,000,000, 877, the hard switch). In full where
-    the plan goes along the obstacle at that fraction of its speed or more; where it heads
-    more nearly straight in, the share it goes along, and none where it heads straight in.
+    took most of the motion along the obstacle as well. The slide: an arm whose way pointed
+    straight into the margin stood there while the plan moved on (``edge_obstacle`` seed 4,
+    431 and seed 6,000,000, 877, the hard switch).
     """
     to_x, to_y = measurement.to_nearest
     gap = length(ops, to_x, to_y)
@@ -1068,45 +1119,40 @@ def approach_limited(
     inside = clearance < 0.0
     nx = ops.where(inside, -to_x, to_x) / divisor
     ny = ops.where(inside, -to_y, to_y) / divisor
-    capped_x, capped_y = capped_along(
-        ops, vx, vy, nx, ny, config.approach_rate * ops.max(clearance - config.safety_buffer, 0.0)
-    )
-    cut = (vx - capped_x) * nx + (vy - capped_y) * ny
-    if not ops.any(valid & (cut > 0.0)):
-        return ops.where(valid, capped_x, vx), ops.where(valid, capped_y, vy)
-    planned_along = planned[1] * nx - planned[0] * ny
-    way = ops.where(planned_along >= 0.0, 1.0, -1.0)
-    along_x, along_y = -ny * way, nx * way  # along the obstacle, the way the plan goes
-    planned_speed = length(ops, planned[0], planned[1])
-    share = ops.clip(
-        abs(planned_along) / ops.max(AHEAD_SPEED_FRACTION * planned_speed, 1e-9), 0.0, 1.0
-    )
-    slide = share * crawl_speed(ops, planned_speed)
-    slid = ops.clip(slide - (capped_x * along_x + capped_y * along_y), 0.0, cut * share)
-    return (
-        ops.where(valid, capped_x + slid * along_x, vx),
-        ops.where(valid, capped_y + slid * along_y, vy),
-    )
+    allowed = config.approach_rate * ops.max(clearance - config.safety_buffer, 0.0)
+    limited_x, limited_y = capped_along(ops, vx, vy, nx, ny, allowed, planned)
+    return ops.where(valid, limited_x, vx), ops.where(valid, limited_y, vy)
 
 
 def reach_limited(
-    ops: Ops, reach_rate: float, full_reach: float, vx: Real, vy: Real, tcp: Point3
+    ops: Ops,
+    reach_rate: float,
+    full_reach: float,
+    vx: Real,
+    vy: Real,
+    tcp: Point3,
+    planned: tuple[Real, Real],
 ) -> tuple[Real, Real]:
     """The TCP's planar velocity without what moves it outwards faster than ``reach_rate``
-    times its distance from the arm's full reach; motion along the reach circle is kept.
+    times its distance from the arm's full reach; motion along the reach circle is kept, and
+    what is cut slides the arm along it the way the plan goes (``capped_along``).
 
     At full stretch the arm cannot move inwards (the radial row of the Jacobian vanishes
     with sin theta2, and the damped inverse gives nothing there), so an arm carried outwards
     past a waypoint near full reach would stay stretched beyond it and be slid back onto it
     (a stop). With this limit the arm comes to the boundary only exponentially, and the
-    heading has time to turn along it.
+    heading has time to turn along it. The slide: AO's way round an obstacle reaching in
+    from beyond full reach, tilted outwards, was cut to the reach circle's way into the
+    corner with the obstacle, where the arm stood (``edge_obstacle`` seed 8,000,000, 805).
     """
     radius = length(ops, tcp[0], tcp[1])
     valid = radius > 0.0
     divisor = ops.where(valid, radius, 1.0)
     allowed = reach_rate * ops.max(full_reach - radius, 0.0)
-    capped_x, capped_y = capped_along(ops, vx, vy, tcp[0] / divisor, tcp[1] / divisor, allowed)
-    return ops.where(valid, capped_x, vx), ops.where(valid, capped_y, vy)
+    limited_x, limited_y = capped_along(
+        ops, vx, vy, tcp[0] / divisor, tcp[1] / divisor, allowed, planned
+    )
+    return ops.where(valid, limited_x, vx), ops.where(valid, limited_y, vy)
 
 
 def _limit(ops: Ops, law: Law, wanted: Point3, previous: Point3) -> tuple[Point3, Mask]:

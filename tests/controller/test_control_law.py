@@ -12,7 +12,9 @@ from controller.behaviours import (
     ACROSS_BAND,
     AHEAD_SPEED_FRACTION,
     PLANNED_REST_SPEED,
+    REST_HEADING,
     REST_LINE_NEARER,
+    STEER_LOOKAHEAD,
     TURN_LEFT,
     TURN_RIGHT,
     Tracking,
@@ -25,6 +27,8 @@ from controller.control_law import (
     PASSED,
     RATE_CHANGE,
     RATE_RAMP,
+    TURN_ASIDE,
+    TURN_KEEP,
     TURN_SHARE,
     WAITING_RATE,
     WAITING_REACH,
@@ -331,6 +335,71 @@ def test_at_a_runs_start_the_heading_is_not_turned_round_for_micrometres() -> No
     along = math.atan2(second.y - first.y, second.x - first.x)
     log = simulate(task, Mode.FUZZY).log
     assert max(abs(wrap_angle(heading - along)) for heading in log["heading"][:100]) < 0.2
+
+
+@pytest.mark.parametrize("offset", [0.0005, -0.0005, 0.002, 0.01])
+def test_tracking_ahead_of_the_plan_steers_back_onto_it_over_no_less_than_the_lookahead(
+    offset: float,
+) -> None:
+    """An arm ahead crawls at AHEAD_SPEED_FRACTION of the plan's speed, and steering back
+    onto the plan over the crawl's own reach (position_gain times the way across against the
+    crawl: 0.5 mm at 5 mm/s) swung PT's way by 60-80 degrees with a fraction of a millimetre
+    across (edge_obstacle seed 8,000,000, 511 and 61, the heading chasing it). It steers over
+    no less than STEER_LOOKAHEAD; its speed is unchanged."""
+    arm = (0.35, offset)
+    tracking = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.02, 0.0), (0.0, 0.0), NO_REST, NOT_PASSED
+    )
+    crawl = max(AHEAD_SPEED_FRACTION * 0.02, PLANNED_REST_SPEED)
+    assert CONFIG.position_gain * STEER_LOOKAHEAD > crawl  # the lookahead is what steers
+    assert tracking.error == pytest.approx(math.atan2(-offset, STEER_LOOKAHEAD))
+    assert tracking.speed == pytest.approx(math.hypot(crawl, CONFIG.position_gain * offset))
+
+
+def test_tracking_past_where_the_plan_rests_steers_back_over_the_lookahead_behind() -> None:
+    """An arm 1 mm past the waypoint where the plan rests, and 0.5 mm beside the plan: its
+    way points back at the waypoint, and the lookahead keeps it pointing back (a floor on the
+    way along, taken forwards, drove an arm waiting there off along the plan at full speed)."""
+    rest = (0.35, 0.0, True)
+    tracking = plan_tracking(
+        SCALAR, CONFIG, 0.0, (0.351, 0.0005), (0.3, 0.0), (0.2, 0.0), (0.0, 0.0), rest, NOT_PASSED
+    )
+    assert tracking.error == pytest.approx(math.atan2(-0.0005, -STEER_LOOKAHEAD))
+
+
+@pytest.mark.parametrize(
+    ("bearing", "rests_ahead"),
+    [
+        (0.0, True),  # straight ahead of the reference
+        (math.acos(REST_HEADING) - 0.01, True),  # just inside
+        (math.acos(REST_HEADING) + 0.01, False),  # just outside: off to the side
+        (math.pi / 2.0, False),
+    ],
+)
+def test_tracking_counts_a_rest_only_where_the_plan_heads_for_it(
+    bearing: float, rests_ahead: bool
+) -> None:
+    """The waypoint the plan rests at, 30 mm from the reference at ``bearing`` off the plan's
+    way, and the arm on the plan's line 2 mm past the waypoint's level: measured along the
+    plan's way, an arm beside the reference was past a waypoint 28 mm to the side of it,
+    turned back to its level and swung round (edge_obstacle seed 8,000,000, 61, the hard
+    switch). PT measures the way to a rest only within REST_HEADING of the plan's way from
+    the reference; elsewhere the arm crawls on as if the plan did not rest there."""
+    reference, planned = (0.3, 0.0), (0.02, 0.0)
+    rest = (0.3 + 0.03 * math.cos(bearing), 0.03 * math.sin(bearing))
+    arm = (rest[0] + 0.002, 0.0)
+    tracking = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, reference, planned, (0.0, 0.0), (*rest, True), NOT_PASSED
+    )
+    no_rest = plan_tracking(
+        SCALAR, CONFIG, 0.0, arm, reference, planned, (0.0, 0.0), NO_REST, NOT_PASSED
+    )
+    if rests_ahead:  # back to the waypoint's level, across to its line
+        across = CONFIG.position_gain * rest[1]
+        back = math.atan2(across, -CONFIG.position_gain * 0.002)
+        assert wrap_angle(tracking.error - back) == pytest.approx(0.0, abs=1e-12)
+    else:
+        assert tracking == no_rest
 
 
 def test_tracking_beside_the_plan_steers_back() -> None:
@@ -708,10 +777,49 @@ def test_the_tcp_moves_outwards_no_faster_than_its_distance_from_full_reach_allo
     bearing = 0.7
     tcp = ((full_reach - gap) * math.cos(bearing), (full_reach - gap) * math.sin(bearing), 0.2)
     assert_cut_to(
-        lambda vx, vy: reach_limited(SCALAR, CONFIG.reach_rate, full_reach, vx, vy, tcp),
+        lambda vx, vy: reach_limited(
+            SCALAR, CONFIG.reach_rate, full_reach, vx, vy, tcp, (0.0, 0.0)
+        ),
         bearing,
         CONFIG.reach_rate * gap,
     )
+
+
+@pytest.mark.parametrize(
+    ("outwards", "along", "planned", "along_after"),
+    [
+        (0.1, 0.0, (0.2, 0.0), SLIDE),  # straight out: slides the plan's way round
+        (0.1, 0.0, (-0.2, 0.0), -SLIDE),  # the other way round, with the plan
+        (0.1, -0.03, (0.2, 0.0), SLIDE),  # against the plan: turned its way
+        (0.1, 0.06, (0.2, 0.0), 0.06),  # already faster that way: left alone
+        (0.02, 0.0, (0.2, 0.0), 0.02 - CONFIG.reach_rate * 0.001),  # no more than is cut
+        (0.1, -0.03, (0.0, 0.2), -0.03),  # a plan heading straight out: no way round
+    ],
+)
+def test_what_the_reach_limit_cuts_slides_the_arm_round_the_reach_circle_the_way_the_plan_goes(
+    outwards: float, along: float, planned: tuple[float, float], along_after: float
+) -> None:
+    """Edge_obstacle seed 8,000,000, 805: AO's way round an obstacle reaching in from beyond
+    full reach, tilted outwards, was cut to the reach circle's way into the corner with the
+    obstacle, where the arm stood. What the reach limit cuts slides the arm round the reach
+    circle the way the plan goes (``planned``: round the circle, outwards), as the approach
+    limit's does along the obstacle."""
+    full_reach = RobotConfig().a1 + RobotConfig().a2
+    bearing, gap = 0.7, 0.001
+    out_x, out_y = math.cos(bearing), math.sin(bearing)
+    round_x, round_y = -out_y, out_x
+    tcp = ((full_reach - gap) * out_x, (full_reach - gap) * out_y, 0.2)
+    vx, vy = reach_limited(
+        SCALAR,
+        CONFIG.reach_rate,
+        full_reach,
+        outwards * out_x + along * round_x,
+        outwards * out_y + along * round_y,
+        tcp,
+        (planned[0] * round_x + planned[1] * out_x, planned[0] * round_y + planned[1] * out_y),
+    )
+    assert vx * out_x + vy * out_y == pytest.approx(min(outwards, CONFIG.reach_rate * gap))
+    assert vx * round_x + vy * round_y == pytest.approx(along_after)
 
 
 def test_the_height_leads_by_the_share_of_the_way_to_the_waypoint_an_arm_ahead_has_come() -> None:
@@ -798,6 +906,35 @@ def test_the_handover_to_the_loop_turns_the_way_and_keeps_the_speed() -> None:
     assert shares[0] == 0.0 and shares[-1] == 1.0 and 0.0 < shares[5] < 1.0
 
 
+@pytest.mark.parametrize(
+    ("apart", "last_aside", "turned_left"),
+    [
+        (math.pi - 0.01, 0.5, True),  # all but opposite, the short way right: left, as last
+        (math.pi - 0.01, -0.5, False),  # the short way right, as last
+        (TURN_KEEP + 0.01, 0.5, True),  # just inside TURN_KEEP: round last's side
+        (TURN_KEEP - 0.01, 0.5, False),  # just outside it: the short way
+        (math.pi - 0.01, TURN_ASIDE + 0.01, True),  # last just aside: its side
+        (math.pi - 0.01, TURN_ASIDE - 0.01, False),  # all but along: the short way
+    ],
+)
+def test_the_way_turns_round_the_side_the_arm_last_moved_to_where_the_two_point_opposite(
+    apart: float, last_aside: float, turned_left: bool
+) -> None:
+    """PT's way on and the final approach's way back all but opposite (``apart``, the way back
+    just right of straight back): the short way round changed side from one tick to the next,
+    and the arm's way flipped with it through a stop (user seed 8,000,000, 999, the hard
+    switch). From TURN_KEEP apart it turns round the side the last commanded velocity lies
+    on, where it lies to a side (TURN_ASIDE): all but along the way on, a rounding's side
+    turned the way against the two added (edge_obstacle seed 6,000,000, 931)."""
+    on = (0.05, 0.0)
+    back = (0.04 * math.cos(-apart), 0.04 * math.sin(-apart))
+    last = (0.03 * math.sqrt(1.0 - last_aside**2), 0.03 * last_aside)  # |sin| last_aside
+    _, vy = turned_towards(SCALAR, on, back, 0.5, last)
+    assert (vy > 0.0) is turned_left
+    added_y = 0.5 * back[1]
+    assert abs(vy - added_y) > 0.5 * TURN_SHARE * 0.045 * math.sin(apart / 2.0)  # turned
+
+
 def test_the_final_approach_taking_over_from_a_way_pointing_back_turns_it_and_keeps_speed() -> None:
     """An arm that went by a waypoint a few millimetres beside it: PT's way on and the final
     approach's way back point apart, and added as vectors they all but cancelled halfway (1
@@ -805,20 +942,20 @@ def test_the_final_approach_taking_over_from_a_way_pointing_back_turns_it_and_ke
     within 90 degrees the two are still added, to the bit."""
     on, back = (0.066, 0.0), (-0.04, -0.004)
     added = (0.5 * (on[0] + back[0]), 0.5 * (on[1] + back[1]))
-    vx, vy = turned_towards(SCALAR, on, back, 0.5)
+    vx, vy = turned_towards(SCALAR, on, back, 0.5, on)
     mean_speed = 0.5 * (math.hypot(*on) + math.hypot(*back))
     assert math.hypot(*added) < TURN_SHARE * mean_speed <= math.hypot(vx, vy)
     assert vy < added[1] - 0.5 * TURN_SHARE * mean_speed  # turned the short way round
     for share in (0.0, 1.0):  # each end is itself
-        assert turned_towards(SCALAR, on, back, share) == pytest.approx(
+        assert turned_towards(SCALAR, on, back, share, on) == pytest.approx(
             on if share == 0.0 else back, abs=1e-15
         )
     # Within 90 degrees, and where either is nothing: added.
-    assert turned_towards(SCALAR, (0.05, 0.0), (0.0001, 0.03), 0.3) == (
+    assert turned_towards(SCALAR, (0.05, 0.0), (0.0001, 0.03), 0.3, (0.0, 0.0)) == (
         0.05 + 0.3 * (0.0001 - 0.05),
         0.0 + 0.3 * (0.03 - 0.0),
     )
-    assert turned_towards(SCALAR, (0.0, 0.0), (-0.02, 0.01), 0.25) == (
+    assert turned_towards(SCALAR, (0.0, 0.0), (-0.02, 0.01), 0.25, (0.0, 0.0)) == (
         0.0 + 0.25 * (-0.02 - 0.0),
         0.0 + 0.25 * (0.01 - 0.0),
     )

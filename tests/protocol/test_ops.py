@@ -300,14 +300,17 @@ def test_pt_and_the_plant_give_the_same_bits_both_ways() -> None:
     # The final approach taking over (turned where the two ways point apart); some nothing.
     approach = rng.uniform(-0.2, 0.2, (2, count))
     approach[:, :20] = 0.0
+    approach[:, 20:40] = -velocity[:, 20:40] * rng.uniform(0.5, 2.0, 20)  # opposite
     share = rng.uniform(0.0, 1.0, count)
-    taken_over = turned_towards(ARRAY, tuple(velocity), tuple(approach), share)
+    last = rng.uniform(-0.2, 0.2, (2, count))
+    taken_over = turned_towards(ARRAY, tuple(velocity), tuple(approach), share, tuple(last))
     for index in range(count):
         one = turned_towards(
             SCALAR,
             tuple(velocity[:, index].tolist()),
             tuple(approach[:, index].tolist()),
             float(share[index]),
+            tuple(last[:, index].tolist()),
         )
         assert_same(_at(taken_over, index), one, index)
 

@@ -275,6 +275,40 @@ def test_an_arm_whose_way_swings_round_faster_than_its_heading_goes_that_way_as_
     _done_in_both_modes_without_a_stop(task)
 
 
+def test_an_arm_in_the_corner_between_full_reach_and_the_obstacle_slides_out_of_it() -> None:
+    """Edge_obstacle seed 8,000,000 (spent), 805: an obstacle reaching in from beyond full
+    reach; AO's way round it, tilted outwards, was cut by the reach limit to the reach
+    circle's way into the corner with the obstacle, and the arm stood there in both modes
+    (margins 0.39 and 0.31). What the reach limit cuts now slides the arm round the circle
+    the way the plan goes, and PT steers back onto the plan over no less than
+    STEER_LOOKAHEAD."""
+    task = generate_scenario_at(8_000_000, 805, family=Family.EDGE_OBSTACLE, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
+@pytest.mark.parametrize("index", [511, 61])
+def test_an_arm_ahead_a_little_beside_the_plan_steers_back_without_chasing_its_way_round(
+    index: int,
+) -> None:
+    """Edge_obstacle seed 8,000,000 (spent): an arm ahead of the plan, at the crawl, steered
+    back onto it over the crawl's own reach (0.5 mm at 5 mm/s), and its way swung 60-150
+    degrees with a fraction of a millimetre across while the heading chased it (511 in both
+    modes, 61 the hard switch). 61 also counted a waypoint 28 mm to the side of the plan as
+    the rest it had passed. PT now steers over no less than STEER_LOOKAHEAD, and counts a
+    rest only where the plan heads for it."""
+    task = generate_scenario_at(8_000_000, index, family=Family.EDGE_OBSTACLE, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
+def test_an_arm_pulled_back_the_way_it_came_turns_round_one_side() -> None:
+    """User seed 8,000,000 (spent), 999, the hard switch: PT's way on and the final approach's
+    way back pointed all but opposite, the short way round between them changed side from
+    one tick to the next, and the commanded way flipped through a stop (margin 0.81). It now
+    turns round the side the arm last moved to."""
+    task = generate_scenario_at(8_000_000, 999, family=Family.USER, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
 @pytest.mark.parametrize(("family", "index"), [(Family.EDGE_REACH, 861), (Family.WIDE, 864)])
 def test_an_arm_brought_out_past_the_waypoint_the_plan_waits_for_comes_back_to_it(
     family: Family, index: int
