@@ -176,13 +176,13 @@ def _main(argv: Sequence[str] | None) -> int:
             for i in indices[::GENERATE_CHUNK]
         ]
         generated: dict[int, Scenario] = {}
-        refused: list[tuple[Scenario, ConfigError]] = []
+        refusals: dict[int, tuple[Scenario, ConfigError]] = {}
         for chunk in executor.map(generate_chunk, chunks):
             for index, scenario, refusal in chunk:
                 if refusal is None:
                     generated[index] = scenario
                 else:
-                    refused.append((scenario, refusal))
+                    refusals[index] = (scenario, refusal)
             bar.update(len(chunk))
         bar.close()
         log.info(
@@ -193,6 +193,8 @@ def _main(argv: Sequence[str] | None) -> int:
             family.value,
         )
         scenarios = [generated[index] for index in indices if index in generated]
+        # In the generator's order, not the workers': the refusals checked are drawn from it.
+        refused = [refusals[index] for index in indices if index in refusals]
         print(refusal_report(args.count, refused, args.check_refused))
         if not scenarios:
             return 0
