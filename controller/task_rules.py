@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from controller.detour import LIMIT_ROOM
 from controller.planner import PATH_CHECK_STEP, check_plan, plan_of
 from protocol.config import ControllerConfig
 from protocol.errors import (
@@ -93,7 +94,15 @@ RULES = (
     ),
     Rule(
         6,
-        "A segment the obstacle stands across leaves a way round it inside the joint limits.",
+        "A segment the obstacle stands across leaves a way round it inside the joint limits: "
+        "on one side or the other, the way AO takes (from the waypoint to the tangent point, "
+        "round the obstacle grown by AO's pass margin, "
+        f"{ControllerConfig().ao_pass_margin * 1000:g} mm by default and less where the next "
+        "waypoint is nearer the obstacle than that, and on to the next waypoint) stays "
+        f"{math.degrees(LIMIT_ROOM):g} degree inside the joints' limits, or, where a straight "
+        "part of it cuts through the hole inside the inner reach, the arm can slide round the "
+        f"hole instead, theta2 {math.degrees(LIMIT_ROOM):g} degree inside its stop, outside "
+        f"that grown obstacle and {math.degrees(LIMIT_ROOM):g} degree inside theta1's limits.",
         (NoWayRoundError,),
     ),
     Rule(
