@@ -4,7 +4,8 @@ A study tool, not part of the controller: it checks the controller's refusals
 (:class:`protocol.errors.NoWayRoundError`) and the generator's families against the plain
 question "is there any path from waypoint ``i`` to waypoint ``i + 1`` that stays outside the
 obstacle grown by the pass margin (``ControllerConfig.ao_pass_margin``: where AO steers) and
-inside the joint limits, with the scenario's elbow?" The arm keeps its elbow for a whole run
+inside the joint limits by the room rule 6 keeps (``controller.detour.LIMIT_ROOM``), with the
+scenario's elbow?" The arm keeps its elbow for a whole run
 (it never passes theta2 = 0), so the search space is theta1 x theta2 on that elbow's side; the
 height joint is left to the plan, and the obstacle blocks the plane only if the planned heights
 of the segment dip below its inflated top.
@@ -34,6 +35,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
+from controller.detour import LIMIT_ROOM
 from controller.planner import plan_of
 from protocol.errors import ConfigError, ScaraError
 from protocol.geometry import Section, nearest_point, to_local
@@ -80,12 +82,14 @@ class FreeSpace:
             raise ConfigError("resolution", f"must be positive, got {resolution!r}")
         robot = scenario.robot
         self.scenario = scenario
-        low2, high2 = robot.theta2_min, robot.theta2_max
+        low2, high2 = robot.theta2_min + LIMIT_ROOM, robot.theta2_max - LIMIT_ROOM
         if scenario.elbow is Elbow.DOWN:
             low2 = max(low2, 0.0)
         else:
             high2 = min(high2, 0.0)
-        self.theta1 = _nodes(robot.theta1_min, robot.theta1_max, resolution)
+        self.theta1 = _nodes(
+            robot.theta1_min + LIMIT_ROOM, robot.theta1_max - LIMIT_ROOM, resolution
+        )
         self.theta2 = _nodes(low2, high2, resolution)
         step1 = float(self.theta1[1] - self.theta1[0])
         step2 = float(self.theta2[1] - self.theta2[0])
@@ -238,8 +242,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m sim.passability",
         description="Whether each segment of scenario files has any way round the obstacle "
-        "grown by the pass margin, within the joint limits and with the scenario's elbow: "
-        "a brute-force search over a grid of the joints.",
+        "grown by the pass margin, within the joint limits by the room rule 6 keeps, and "
+        "with the scenario's elbow: a brute-force search over a grid of the joints.",
     )
     parser.add_argument("scenarios", nargs="+", help="scenario TOML files or packaged names")
     parser.add_argument(

@@ -29,7 +29,7 @@ from protocol.errors import (
 )
 from protocol.kinematics import forward
 from protocol.scenario import Scenario
-from sim.passability import Verdict, way_round
+from sim.passability import RESOLUTION, Verdict, way_round
 
 DEFAULT_CHECKED = 20
 """Refused tasks checked by brute force by default (a way-round search takes about 0.1 s)."""
@@ -39,6 +39,9 @@ EDGE_SAMPLES = 200_000
 """Points on the inflated obstacle's edge the clearance is searched over."""
 BISECTIONS = 80
 """Halvings of theta2's interval in the search for the joints that reach a point."""
+REFINEMENTS = 3
+"""Times an unsure way-round search is asked again on a grid twice as fine (to RESOLUTION / 8:
+a gap the grid's error hides, about 4 mm wide at RESOLUTION, is told from 0.5 mm)."""
 SPEED_STEP = 1e-4
 """s between the plan's points the speed is searched over (the gate's: 5 ms)."""
 
@@ -71,7 +74,14 @@ def refused_waypoint(error: ConfigError) -> int:
 
 
 def _way_round(task: Scenario, error: ConfigError) -> Check:
-    verdict = way_round(task, refused_segment(error))
+    """The search on its grid, asked again on grids twice as fine while it is unsure."""
+    segment, resolution = refused_segment(error), RESOLUTION
+    verdict = way_round(task, segment, resolution)
+    for _ in range(REFINEMENTS):
+        if verdict is not Verdict.UNSURE:
+            break
+        resolution /= 2.0
+        verdict = way_round(task, segment, resolution)
     return {Verdict.NO_WAY: Check.RIGHT, Verdict.WAY: Check.WRONG}.get(verdict, Check.UNSURE)
 
 

@@ -4,6 +4,7 @@ exactly as wide as the grid can tell."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from pathlib import Path
@@ -12,6 +13,7 @@ import networkx as nx
 import numpy as np
 import pytest
 
+from controller.detour import LIMIT_ROOM
 from protocol.config import ControllerConfig
 from protocol.geometry import EllipticCylinder
 from protocol.kinematics import Elbow, reach_radii
@@ -44,8 +46,12 @@ def across_x_axis(
 
 def with_inner_gap(gap: float) -> Scenario:
     """The obstacle reaching past the outer reach, its grown inner end ``gap`` from the
-    radius where theta2 meets its limit."""
-    inner = reach_radii(Scenario("", (), None).robot)[0]
+    radius where theta2 is LIMIT_ROOM inside its stop (the room rule 6 keeps)."""
+    robot = Scenario("", (), None).robot
+    room = dataclasses.replace(
+        robot, theta2_min=robot.theta2_min + LIMIT_ROOM, theta2_max=robot.theta2_max - LIMIT_ROOM
+    )
+    inner = reach_radii(room)[0]
     long_diameter = 0.5
     half = long_diameter / 2.0 + INFLATION + MARGIN
     return across_x_axis(inner + gap + half, long_diameter)
@@ -73,6 +79,12 @@ def test_an_obstacle_below_the_path_blocks_nothing() -> None:
 def test_a_gap_at_the_inner_limit_is_found_if_wide_enough() -> None:
     assert way_round(with_inner_gap(0.03), 0) is Verdict.WAY
     assert way_round(with_inner_gap(-0.005), 0) is Verdict.NO_WAY
+
+
+def test_a_gap_within_the_room_rule_6_keeps_from_a_stop_is_no_way() -> None:
+    """1 mm short of the room's circle (1.5 mm beyond the stop's): no way, at any grid."""
+    assert way_round(with_inner_gap(-0.001), 0, math.radians(0.05)) is Verdict.NO_WAY
+    assert way_round(with_inner_gap(0.001), 0, math.radians(0.05)) is Verdict.WAY
 
 
 def test_a_gap_narrower_than_the_grid_can_tell_is_unsure_until_the_grid_is_finer() -> None:
