@@ -46,8 +46,8 @@ STRAIGHT_POINTS = 16
 """Points a straight move is cut into to check it (:func:`straight_passable`)."""
 LIMIT_ROOM = math.radians(0.5)
 """rad: how far inside every joint limit the way must stay (about 2.5 mm of radius at the
-inner reach limit): the arm may pass up to the pass margin inside the boundary checked, and
-more room refused tasks that a dense search (``sim/passability.py``) finds a way through."""
+inner reach limit), as rule 6 says; the brute force of ``sim/passability.py`` searches with
+the same room."""
 SLIDE_NUDGE = 1e-9
 """Share of its radius the slide's arc is moved outwards, so that rounding leaves it reached."""
 

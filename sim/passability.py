@@ -5,10 +5,10 @@ A study tool, not part of the controller: it checks the controller's refusals
 question "is there any path from waypoint ``i`` to waypoint ``i + 1`` that stays outside the
 obstacle grown by the pass margin (``ControllerConfig.ao_pass_margin``: where AO steers) and
 inside the joint limits by the room rule 6 keeps (``controller.detour.LIMIT_ROOM``), with the
-scenario's elbow?" The arm keeps its elbow for a whole run
-(it never passes theta2 = 0), so the search space is theta1 x theta2 on that elbow's side; the
-height joint is left to the plan, and the obstacle blocks the plane only if the planned heights
-of the segment dip below its inflated top.
+scenario's elbow?" The arm keeps its elbow for a whole run (it never passes theta2 = 0), so
+the search space is theta1 x theta2 on that elbow's side; the height joint is left to the
+plan, and the obstacle blocks the plane only if the planned heights of the segment dip below
+its inflated top.
 
 The search is a grid over the joints (:data:`RESOLUTION` apart) flood-filled from the first
 waypoint. A grid can only bound the answer, so both claims are made with the grid's own error

@@ -32,7 +32,8 @@ from protocol.scenario import Scenario
 from sim.passability import RESOLUTION, Verdict, way_round
 
 DEFAULT_CHECKED = 20
-"""Refused tasks checked by brute force by default (a way-round search takes about 0.1 s)."""
+"""Refused tasks checked by brute force by default (a way-round search takes about 0.1 s, up
+to about 3 s where it is unsure and asked again on finer grids)."""
 _SEGMENT = re.compile(r"waypoints\[(\d+)\.\.")
 _WAYPOINT = re.compile(r"waypoints\[(\d+)\]$")
 EDGE_SAMPLES = 200_000
