@@ -170,7 +170,7 @@ def test_a_task_sent_over_isotp_is_accepted_and_described_back(rig: Rig) -> None
         (lambda d: d["waypoints"][2].update(x=0.455, y=0.045), Reason.NEAR_OBSTACLE),
         (lambda d: d["waypoints"][1].update(t=0.3), Reason.TOO_FAST),
         (
-            lambda d: d["obstacle"].update(long_diameter=0.9, short_diameter=0.06),
+            lambda d: d["obstacle"].update(long_diameter=0.9, short_diameter=0.1),
             Reason.NO_WAY_ROUND,  # 15: once outside the signal's range, it could not be said
         ),
     ],
