@@ -608,7 +608,7 @@ def step(
         ops,
         wanted,
         box(ops, law.limits, joints, state.previous),
-        barrier(ops, law.robot, config, law.obstacle, trig, tcp, measurement),
+        barrier(ops, law.robot, config, law.obstacle, trig, tcp, measurement, state.previous),
     )
     limited = limited | (command[0] != wanted[0]) | (command[1] != wanted[1])
     limited = limited | (command[2] != wanted[2])

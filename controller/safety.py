@@ -10,7 +10,10 @@ the one nearest to it, in joint rates, that keeps two promises for the coming ti
   plane and the height above the obstacle's inflated top: the arm is safe when either is
   positive, and keeping the larger one from falling to zero keeps it so. From h >= 0 it
   falls at most exponentially, so it never reaches zero: the arm never enters the inflated
-  obstacle (the buffer takes up what the drives' lag adds, ``docs/design.md``);
+  obstacle (the buffer takes up what the drives' lag adds, ``docs/design.md``). The joints
+  follow the command ``drive_lag`` late, and at fast joint rates the TCP's way bends: where
+  it bends towards the obstacle, h falls faster than ``a . qdot`` says, by ``drive_lag``
+  times the bend's share towards it, and the barrier asks that much more (its ``b``);
 - **the box**: each joint rate within its speed limit, within one tick's acceleration of the
   last command, and moving towards its joint stop no faster than :func:`approach_speed`
   allows for the way left to STOP_MARGIN before it (the same promise for the joint stops).
@@ -157,11 +160,13 @@ def barrier(
     trig: ArmTrig,
     tcp: Point3,
     measurement: ObstacleMeasurement,
+    rates: Point3,
 ) -> Barrier:
     """The barrier of the obstacle ``section`` (inflated) for the arm at ``tcp``: on the plane
     distance where that is the larger, else on the height above the top. ``measurement``
     (module DM's, this tick) gives the plane distance where DM measured it; above the top DM
-    does not, and it is measured here."""
+    does not, and it is measured here. ``rates`` (the last command sent, which the joints
+    still follow) give the bend of the TCP's way."""
     px, py, pz = tcp
     dx, dy = px - section.x, py - section.y
     reach = section.a + config.sensing_range
@@ -181,6 +186,7 @@ def barrier(
         tcp,
         measurement,
         unmeasured,
+        rates,
     )
 
 
@@ -193,6 +199,7 @@ def _near_barrier(
     tcp: Point3,
     measurement: ObstacleMeasurement,
     unmeasured: Mask,
+    rates: Point3,
 ) -> Barrier:
     """:func:`barrier` within the sensing range of the obstacle."""
     px, py, pz = tcp
@@ -224,12 +231,18 @@ def _near_barrier(
         ops.where(over, -1.0, 0.0),  # z = d0 - d3
     )
     # How hard the joints can brake the TCP's approach: each at BRAKING of its limit.
-    decel = BRAKING * (
-        abs(a[0]) * robot.accel_limits[0]
-        + abs(a[1]) * robot.accel_limits[1]
-        + abs(a[2]) * robot.accel_limits[2]
-    )
-    return Barrier(a, -approach_speed(ops, h, config.safety_rate, decel, config.drive_lag))
+    accel = robot.accel_limits
+    decel = BRAKING * (abs(a[0]) * accel[0] + abs(a[1]) * accel[1] + abs(a[2]) * accel[2])
+    # The bend: at constant joint rates the TCP accelerates towards the base axis and the
+    # elbow (each link's centripetal pull, -rate^2 times the link, the links read off the
+    # Jacobian). Its share towards the obstacle, over the drives' lag, is what h loses beyond
+    # a . qdot while the joints catch up with the command (module docstring).
+    rate12 = rates[0] + rates[1]
+    pull = rates[0] * rates[0] * (normal_x * (j21 - j22) + normal_y * (j12 - j11))
+    pull = pull + rate12 * rate12 * (normal_x * j22 - normal_y * j12)
+    inward = ops.where(over, 0.0, ops.max(pull, 0.0))
+    lag = config.drive_lag
+    return Barrier(a, lag * inward - approach_speed(ops, h, config.safety_rate, decel, lag))
 
 
 def _plane_clearance(ops: Ops, section: Section, px: Real, py: Real) -> tuple[Real, Real, Real]:
