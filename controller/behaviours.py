@@ -41,6 +41,11 @@ that way (:func:`plan_tracking`)."""
 ACROSS_BAND = 0.8
 """|sin| of PT's heading error from which the TCP goes PT's way across the heading directly
 (:func:`across_heading`)."""
+BACKWARD_AO_SHARE = 0.05
+"""The most AO's share of the blend (k_C over k_T + k_C) with which PT still goes a way behind
+its heading backwards (:func:`backward_tracking`), AO's share kept as it moves the arm: with
+AO fading out at 0.03, 0.01, 0.001 of the blend, the arm stood 16 ms while the heading turned
+half round to PT's way (``edge_obstacle`` seed 10,000,000, 922, fuzzy)."""
 BACKWARD_SPEED = 0.001
 """m/s: PT goes a way behind its heading backwards (:func:`backward_tracking`) only where it
 wants at least this: below, the way is that of an arm all but on its reference (at a run's

@@ -22,6 +22,7 @@ from typing import NamedTuple, Protocol
 
 from controller.behaviours import (
     AHEAD_SPEED_FRACTION,
+    BACKWARD_AO_SHARE,
     BACKWARD_SPEED,
     PLANNED_REST_SPEED,
     Command,
@@ -531,15 +532,28 @@ def step(
     # PT alone, its way behind the heading (v 0): an arm all but still goes that way
     # backwards, the heading turned half round, instead of turning on the spot while the plan
     # moves on (where the plan turns back at a waypoint, or the hard switch hands an arm back).
-    backward = (k_c == 0.0) & (tracking.v == 0.0) & (tracking.speed > BACKWARD_SPEED)
+    backward = (
+        (k_c <= BACKWARD_AO_SHARE * total) & (tracking.v == 0.0) & (tracking.speed > BACKWARD_SPEED)
+    )
     if ops.any(backward):
         if not ops.any(passed_next):
             last_speed = _last_speed(ops, law.robot, trig, state.previous)
         backward = backward & (last_speed < PLANNED_REST_SPEED)
         reversed_command = backward_tracking(ops, config, tracking)
+        # AO's share, as it moves the arm, in the turned heading's terms: its way along the
+        # heading reversed, its turn rate the same.
+        share = k_c / total
         blended = Command(
-            ops.where(backward, reversed_command.v, blended.v),
-            ops.where(backward, reversed_command.omega, blended.omega),
+            ops.where(
+                backward,
+                reversed_command.v + share * (-avoiding.v - reversed_command.v),
+                blended.v,
+            ),
+            ops.where(
+                backward,
+                reversed_command.omega + share * (avoiding.omega - reversed_command.omega),
+                blended.omega,
+            ),
         )
         heading = ops.where(backward, wrap_angle(heading + math.pi), heading)
         heading_cos = ops.where(backward, -heading_cos, heading_cos)

@@ -300,6 +300,17 @@ def test_an_arm_ahead_a_little_beside_the_plan_steers_back_without_chasing_its_w
     _done_in_both_modes_without_a_stop(task)
 
 
+def test_an_arm_whose_way_lies_behind_it_as_ao_fades_out_goes_there_backwards() -> None:
+    """Edge_obstacle seed 10,000,000 (spent), 922, fuzzy: AO, blended in near the obstacle,
+    carried the arm 5 mm ahead of a reference creeping to the last waypoint, and PT's way
+    then lay 160 degrees behind the heading while AO faded out (0.03, 0.01, 0.001 of the
+    blend). The backward drive acted only with AO at nothing, and the arm stood 16 ms while
+    the heading turned half round. It now acts with AO at up to BACKWARD_AO_SHARE of the
+    blend."""
+    task = generate_scenario_at(10_000_000, 922, family=Family.EDGE_OBSTACLE, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
 def test_an_arm_pulled_back_the_way_it_came_turns_round_one_side() -> None:
     """User seed 8,000,000 (spent), 999, the hard switch: PT's way on and the final approach's
     way back pointed all but opposite, the short way round between them changed side from

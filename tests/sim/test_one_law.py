@@ -102,7 +102,7 @@ PINNED = {
     "random-11-1/conventional": "a63a619fed925335",
     "random-11-2/fuzzy": "9fd6478401500a0b",
     "random-11-2/conventional": "9fd6478401500a0b",
-    "random-11-3/fuzzy": "327ab6e4e9661464",
+    "random-11-3/fuzzy": "4c818ea568b67ace",
     "random-11-3/conventional": "1e3879127b45a796",
     "random-11-4/fuzzy": "e4d004bbd344a96e",
     "random-11-4/conventional": "e4d004bbd344a96e",
