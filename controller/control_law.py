@@ -529,9 +529,10 @@ def step(
         (k_t * tracking.v + k_c * avoiding.v) / total,
         (k_t * tracking.omega + k_c * avoiding.omega) / total,
     )
-    # PT alone, its way behind the heading (v 0): an arm all but still goes that way
-    # backwards, the heading turned half round, instead of turning on the spot while the plan
-    # moves on (where the plan turns back at a waypoint, or the hard switch hands an arm back).
+    # PT alone or all but alone (AO at most BACKWARD_AO_SHARE of the blend), its way behind
+    # the heading (v 0): an arm all but still goes that way backwards, the heading turned half
+    # round, instead of turning on the spot while the plan moves on (where the plan turns back
+    # at a waypoint, the hard switch hands an arm back, or AO fades out).
     backward = (
         (k_c <= BACKWARD_AO_SHARE * total) & (tracking.v == 0.0) & (tracking.speed > BACKWARD_SPEED)
     )
@@ -1180,7 +1181,7 @@ def _limit(ops: Ops, law: Law, wanted: Point3, previous: Point3) -> tuple[Point3
     """
     # (A size that is 0 is never over its limit: + (size == 0.0) only keeps its unused
     # quotient finite.)
-    # (Unrolled: a loop over the three joints cost the scalar tick 1 % more.)
+    # (Written out: the loops over the three joints cost the scalar step 2 % more.)
     (w0, w1, w2), (p0, p1, p2) = wanted, previous
     speed0, speed1, speed2 = law.speed_limits
     step0, step1, step2 = law.step_limits
