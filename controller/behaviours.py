@@ -23,8 +23,12 @@ TURN_LEFT = 1
 TURN_RIGHT = -1
 PLANNED_REST_SPEED = 0.005
 """m/s: below this PT drops the crawl along the plan (AHEAD_SPEED_FRACTION) and the split
-along and across it, whose direction is not defined at a standstill; above, the crawl is never
-slower than this."""
+along and across it, whose direction is not defined at a standstill."""
+CRAWL_SPEED_MIN = 0.008
+"""m/s: the slowest PT crawls along a moving plan (:func:`crawl_speed`). At 5 mm/s, 1.5 times
+the stop speed of a plan averaging 165 mm/s, an arm the hard switch handed back moving
+against the plan's way reversed to the crawl and stood 6 ms (``edge_obstacle`` seed
+11,000,000, 790)."""
 AHEAD_SPEED_FRACTION = 0.25
 """A TCP ahead of the moving plan slows down to this fraction of the planned speed."""
 REST_LINE_NEARER = 0.01
@@ -92,8 +96,9 @@ def aim_margin(pass_margin: float, room: float) -> float:
 
 def crawl_speed(ops: Ops, planned_speed: Real) -> Real:
     """PT's crawl along a plan moving at ``planned_speed``: AHEAD_SPEED_FRACTION of it, and
-    no slower than PLANNED_REST_SPEED (:func:`plan_tracking`)."""
-    return ops.max(AHEAD_SPEED_FRACTION * planned_speed, PLANNED_REST_SPEED)
+    no slower than CRAWL_SPEED_MIN or the plan itself, the slower (an arm on a plan slower
+    than that moves with it, not ahead of it) (:func:`plan_tracking`)."""
+    return ops.max(AHEAD_SPEED_FRACTION * planned_speed, ops.min(CRAWL_SPEED_MIN, planned_speed))
 
 
 def plan_tracking(
@@ -114,7 +119,7 @@ def plan_tracking(
     moves at its size (so an arm beside a plan that slows down or waits still closes the
     gap). Along, it is never below AHEAD_SPEED_FRACTION of the planned speed: a TCP ahead of
     the plan (AO may drive it faster than planned) lets the plan catch up at a crawl rather
-    than turning round, or standing still while the plan moves. Nor below PLANNED_REST_SPEED:
+    than turning round, or standing still while the plan moves. Nor below CRAWL_SPEED_MIN:
     a quarter of a plan slowing through a waypoint, turning 55 degrees, left an arm ahead of
     it below the speed a stop counts from (edge_obstacle seed 4, 426, the hard switch).
 
@@ -262,8 +267,8 @@ def avoid_obstacle(
     open (:mod:`controller.detour`; ``elbow``: the sign of theta2; ``obstacle``, the inflated
     one, where the straight way keeps clear of it: :func:`_side_the_joints_take`), keeps it
     while it acts unless that way closes (checked again while ``check_again``: a joint near
-    its stop, where a way round closes, or the plan just moved on to its next waypoint, the
-    goal the way was judged to), and forgets it when it stops.
+    its stop or full reach, where a way round closes, or the plan just moved on to its next
+    waypoint, the goal the way was judged to), and forgets it when it stops.
     """
     engaged = measurement.present & ops.not_(
         (ops.max(measurement.ahead, measurement.toward) <= AHEAD_NONE)
@@ -326,7 +331,11 @@ def _side_the_joints_take(
     A way is judged first clear of the hole inside the inner reach; only where neither is,
     by whether the arm can slide round the hole (:func:`controller.detour.passable`). Judged
     by the slide alone, AO kept ways along theta2's stop where the other side was clear, and
-    fuzzy runs went rougher (``edge_limit`` seed 4, 313: peak jerk 68 to 338 m/s^3).
+    fuzzy runs went rougher (``edge_limit`` seed 4, 313: peak jerk 68 to 338 m/s^3). From
+    inside AO's margin no way round it is open on either side; there the sides are judged
+    round the inflated obstacle itself (AO kept the side that had taken an arm into the
+    corner between full reach and an obstacle reaching in from beyond it, and it stood there:
+    ``edge_obstacle`` seed 8,000,000, 805, fuzzy).
     """
     bent: Mask = False
     if ops.any(ops.not_(blocked)):
@@ -346,6 +355,14 @@ def _side_the_joints_take(
         kept = _way_open(ops, robot, sections, position, goal, preferred, elbow, slide=True)
         other = _way_open(ops, robot, sections, position, goal, -preferred, elbow, slide=True)
         turn = turn | (undecided & ops.not_(kept) & other)
+        # From inside AO's margin no way round it is open: judged round the inflated obstacle
+        # itself, as a way that bends round past its end is.
+        inside = undecided & blocked & ops.not_(turn) & ops.not_(kept)
+        if ops.any(inside):
+            own = ((inside, obstacle),)
+            kept_own = _way_open(ops, robot, own, position, goal, preferred, elbow, slide=False)
+            other_own = _way_open(ops, robot, own, position, goal, -preferred, elbow, slide=False)
+            turn = turn | (inside & ops.not_(kept_own) & other_own)
     return ops.where(turn, -preferred, preferred)
 
 

@@ -132,7 +132,8 @@ millimetres beside it, pulled back, stood (`edge_reach` seed 2, 38). Turned in f
 swung round at speed, and jerked more than the hard switch (`fast` 461: 806 against 644
 m/s^3)."""
 NEAR_STOP = math.radians(5.0)
-"""rad: a revolute joint this near its stop has AO check that its way round is still open."""
+"""rad: a revolute joint this near its stop (theta2 this near 0, full reach) has AO check that
+its way round is still open."""
 WAITING_RATE = 0.5
 """The plan's rate below which it all but waits for the arm (:func:`approach_pull`)."""
 WAITING_REACH = (0.01, 0.02)
@@ -653,12 +654,14 @@ def step(
 
 
 def _near_stop(ops: Ops, robot: RobotConfig, theta1: Real, theta2: Real) -> Mask:
-    """theta1 or theta2 within NEAR_STOP of a stop, where a way round the obstacle may close."""
+    """theta1 or theta2 within NEAR_STOP of a stop, or theta2 of 0 (full reach, which the
+    elbow cannot pass), where a way round the obstacle may close."""
     return (
         (theta1 - robot.theta1_min < NEAR_STOP)
         | (robot.theta1_max - theta1 < NEAR_STOP)
         | (theta2 - robot.theta2_min < NEAR_STOP)
         | (robot.theta2_max - theta2 < NEAR_STOP)
+        | (abs(theta2) < NEAR_STOP)
     )
 
 
@@ -1077,7 +1080,7 @@ def capped_along(
     the obstacle's margin; AO's, tilted out towards full reach) stood there while the plan
     moved on, or slid along it the wrong way, into the corner between the two. So what is
     cut slides it, up to PT's crawl (AHEAD_SPEED_FRACTION of the plan's speed, no slower than
-    PLANNED_REST_SPEED) the plan's way along: in full where the plan goes along the boundary
+    CRAWL_SPEED_MIN) the plan's way along: in full where the plan goes along the boundary
     at that fraction of its speed or more; where it heads more nearly straight at it, the
     share it goes along, and none where it heads straight at it.
     """

@@ -11,6 +11,7 @@ import pytest
 from controller.behaviours import (
     ACROSS_BAND,
     AHEAD_SPEED_FRACTION,
+    CRAWL_SPEED_MIN,
     PLANNED_REST_SPEED,
     REST_HEADING,
     REST_LINE_NEARER,
@@ -183,19 +184,23 @@ def test_the_tcp_goes_pt_way_across_a_heading_90_degrees_off_it_as_fast_as_it_la
     ("planned", "crawl"),
     [
         (
-            PLANNED_REST_SPEED / AHEAD_SPEED_FRACTION + 0.001,
-            PLANNED_REST_SPEED + AHEAD_SPEED_FRACTION * 0.001,
+            CRAWL_SPEED_MIN / AHEAD_SPEED_FRACTION + 0.001,
+            CRAWL_SPEED_MIN + AHEAD_SPEED_FRACTION * 0.001,
         ),
-        (PLANNED_REST_SPEED / AHEAD_SPEED_FRACTION - 0.001, PLANNED_REST_SPEED),
-        (PLANNED_REST_SPEED + 0.0001, PLANNED_REST_SPEED),
+        (CRAWL_SPEED_MIN / AHEAD_SPEED_FRACTION - 0.001, CRAWL_SPEED_MIN),
+        (CRAWL_SPEED_MIN + 0.0001, CRAWL_SPEED_MIN),
+        (CRAWL_SPEED_MIN - 0.0001, CRAWL_SPEED_MIN - 0.0001),  # no faster than the plan
+        (PLANNED_REST_SPEED + 0.0001, PLANNED_REST_SPEED + 0.0001),
     ],
 )
 def test_tracking_ahead_of_a_slow_plan_crawls_no_slower_than_a_plan_that_moves(
     planned: float, crawl: float
 ) -> None:
-    """An arm 5 cm ahead crawls at a quarter of the plan's speed down to PLANNED_REST_SPEED,
-    and at that speed below it: a quarter of a plan slowing through a waypoint left an arm
-    ahead of it below the stop speed (edge_obstacle seed 4, 426)."""
+    """An arm 5 cm ahead crawls at a quarter of the plan's speed down to CRAWL_SPEED_MIN,
+    and at that speed below it, or the plan's where that is the slower: a quarter of a plan
+    slowing through a waypoint left an arm ahead of it below the stop speed (edge_obstacle
+    seed 4, 426), and at 5 mm/s an arm handed back moving the other way reversed to the
+    crawl below it (edge_obstacle seed 11,000,000, 790)."""
     command = plan_tracking(
         SCALAR,
         CONFIG,
@@ -226,7 +231,7 @@ def test_tracking_past_the_waypoint_crawls_at_a_share_of_the_plans_own_speed(rat
         SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), planned, (0.0, 0.0), NO_REST, NOT_PASSED
     )
     if 0.2 * rate >= PLANNED_REST_SPEED:
-        crawl = max(AHEAD_SPEED_FRACTION * 0.2 * rate, PLANNED_REST_SPEED)
+        crawl = max(AHEAD_SPEED_FRACTION * 0.2 * rate, CRAWL_SPEED_MIN)
         assert before.v == pytest.approx(crawl)
     else:
         assert before.v == 0.0
@@ -350,7 +355,7 @@ def test_tracking_ahead_of_the_plan_steers_back_onto_it_over_no_less_than_the_lo
     tracking = plan_tracking(
         SCALAR, CONFIG, 0.0, arm, (0.3, 0.0), (0.02, 0.0), (0.0, 0.0), NO_REST, NOT_PASSED
     )
-    crawl = max(AHEAD_SPEED_FRACTION * 0.02, PLANNED_REST_SPEED)
+    crawl = max(AHEAD_SPEED_FRACTION * 0.02, CRAWL_SPEED_MIN)
     assert CONFIG.position_gain * STEER_LOOKAHEAD > crawl  # the lookahead is what steers
     assert tracking.error == pytest.approx(math.atan2(-offset, STEER_LOOKAHEAD))
     assert tracking.speed == pytest.approx(math.hypot(crawl, CONFIG.position_gain * offset))
@@ -506,6 +511,21 @@ def test_a_side_kept_is_checked_again_when_asked_and_left_where_its_way_is_close
     # TURN_RIGHT: round the far side, away from the base.
     side = _side_chosen(obstacle, measurement, heading, tcp, goal, check_again, TURN_RIGHT)
     assert side == (TURN_LEFT if check_again else TURN_RIGHT)
+
+
+@pytest.mark.parametrize("kept", [TURN_RIGHT, TURN_LEFT])
+def test_inside_aos_margin_a_side_kept_is_judged_round_the_obstacle_itself(kept: int) -> None:
+    """The corner between full reach and an obstacle reaching in from beyond it, the TCP 1 mm
+    outside the inflated obstacle and the goal back round its near side (edge_obstacle seed
+    8,000,000, 805): from inside AO's margin no way round the margin is open, and the side
+    AO had taken, round the far end past full reach, was kept while the arm stood. Judged
+    round the inflated obstacle itself, the near side is open and the far side closed."""
+    obstacle = EllipticCylinder(0.4706, 0.2529, 0.1254, 0.0452, 0.413, 0.0957, 0.02)
+    tcp, goal = (0.5486, 0.2428, 0.2), (0.4643, 0.2017)
+    measurement = measure(obstacle, tcp, goal, CONFIG.sensing_range)
+    assert measurement.blocked
+    heading = math.radians(46.0)  # into the corner
+    assert _side_chosen(obstacle, measurement, heading, tcp, goal, True, kept) == TURN_LEFT
 
 
 def _side_chosen(
@@ -737,7 +757,7 @@ SLIDE = AHEAD_SPEED_FRACTION * 0.2
         (0.1, -0.03, (0.2, 0.0), SLIDE),  # against the plan: turned its way
         (0.02, 0.0, (0.2, 0.0), 0.02 - CONFIG.approach_rate * 0.003),  # no more than is cut
         (0.01, 0.0, (0.2, 0.0), 0.0),  # nothing cut, nothing slid
-        (0.1, 0.0, (0.01, 0.0), PLANNED_REST_SPEED),  # a slow plan: the crawl's floor
+        (0.1, 0.0, (0.01, 0.0), CRAWL_SPEED_MIN),  # a slow plan: the crawl's floor
         (0.1, 0.0, (SLIDE / 2.0, math.sqrt(0.04 - SLIDE**2 / 4.0)), SLIDE / 2.0),  # half in
         (0.1, -0.03, (0.0, 0.2), -0.03),  # a plan heading straight in: no way along
     ],
@@ -749,7 +769,7 @@ def test_what_the_approach_limit_cuts_slides_the_arm_the_way_the_plan_goes_along
     whose way back to a plan bending through the margin pointed straight into it; with what
     moved it in cut, it stood while the plan moved on. What is cut now moves it along the
     obstacle the way the plan goes (``planned``: along the obstacle, into it), at PT's crawl:
-    AHEAD_SPEED_FRACTION of the plan's speed, no slower than PLANNED_REST_SPEED; in part
+    AHEAD_SPEED_FRACTION of the plan's speed, no slower than CRAWL_SPEED_MIN; in part
     where the plan goes along it at less than that fraction of its speed, the share it does
     (half, here)."""
     measurement, towards_it = _off_the_long_end(0.004)  # 3 mm outside the buffer

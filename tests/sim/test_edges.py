@@ -207,7 +207,7 @@ def test_an_arm_ahead_of_a_plan_slowing_through_a_waypoint_crawls_on_above_the_s
     """Edge_obstacle seed 4, 426: the hard switch handed over an arm ahead of a plan slowing
     through a waypoint and turning there; PT's crawl, a quarter of the plan's speed, turned
     with the plan, and the arm stood (margin 0.71). The crawl is no slower than
-    PLANNED_REST_SPEED now."""
+    CRAWL_SPEED_MIN now."""
     task = generate_scenario_at(4, 426, family=Family.EDGE_OBSTACLE)
     _done_in_both_modes_without_a_stop(task)
 
@@ -281,7 +281,10 @@ def test_an_arm_in_the_corner_between_full_reach_and_the_obstacle_slides_out_of_
     circle's way into the corner with the obstacle, and the arm stood there in both modes
     (margins 0.39 and 0.31). What the reach limit cuts now slides the arm round the circle
     the way the plan goes, and PT steers back onto the plan over no less than
-    STEER_LOOKAHEAD."""
+    STEER_LOOKAHEAD. With PT's crawl at CRAWL_SPEED_MIN, fuzzy came there again and stood
+    until no progress ended the run: inside AO's margin neither way round it was open, and
+    the side was never checked at full reach. It is checked there now, round the inflated
+    obstacle itself where neither way round AO's margin is open."""
     task = generate_scenario_at(8_000_000, 805, family=Family.EDGE_OBSTACLE, held_out=True)
     _done_in_both_modes_without_a_stop(task)
 
@@ -308,6 +311,16 @@ def test_an_arm_whose_way_lies_behind_it_as_ao_fades_out_goes_there_backwards() 
     the heading turned half round. It now acts with AO at up to BACKWARD_AO_SHARE of the
     blend."""
     task = generate_scenario_at(10_000_000, 922, family=Family.EDGE_OBSTACLE, held_out=True)
+    _done_in_both_modes_without_a_stop(task)
+
+
+def test_an_arm_handed_back_moving_against_the_plans_way_reverses_above_the_stop_speed() -> None:
+    """Edge_obstacle seed 11,000,000 (spent), 790, the hard switch: the plan makes a U
+    through the obstacle, and AO handed the arm back 109 mm ahead of the reference, moving at
+    141 mm/s against the plan's way there. PT wanted the crawl along it, 5 mm/s, 1.5 times
+    the stop speed: the arm reversed to it and stood 6 ms. The crawl is no slower than
+    CRAWL_SPEED_MIN now."""
+    task = generate_scenario_at(11_000_000, 790, family=Family.EDGE_OBSTACLE, held_out=True)
     _done_in_both_modes_without_a_stop(task)
 
 
