@@ -352,18 +352,34 @@ def _side_the_joints_take(
     undecided = closed & ops.not_(other_open)
     if ops.any(undecided):
         # Neither way clear of theta2's stop: the one the arm can slide round.
-        kept = _way_open(ops, robot, sections, position, goal, preferred, elbow, slide=True)
-        other = _way_open(ops, robot, sections, position, goal, -preferred, elbow, slide=True)
+        kept, other = _ways_open(ops, robot, sections, position, goal, preferred, elbow, True)
         turn = turn | (undecided & ops.not_(kept) & other)
         # From inside AO's margin no way round it is open: judged round the inflated obstacle
         # itself, as a way that bends round past its end is.
-        inside = undecided & blocked & ops.not_(turn) & ops.not_(kept)
+        inside = undecided & blocked & ops.not_(kept | other)
         if ops.any(inside):
             own = ((inside, obstacle),)
-            kept_own = _way_open(ops, robot, own, position, goal, preferred, elbow, slide=False)
-            other_own = _way_open(ops, robot, own, position, goal, -preferred, elbow, slide=False)
-            turn = turn | (inside & ops.not_(kept_own) & other_own)
+            kept, other = _ways_open(ops, robot, own, position, goal, preferred, elbow, False)
+            turn = turn | (inside & ops.not_(kept) & other)
     return ops.where(turn, -preferred, preferred)
+
+
+def _ways_open(
+    ops: Ops,
+    robot: RobotConfig,
+    sections: tuple[tuple[Mask, Section], ...],
+    position: tuple[Real, Real],
+    goal: tuple[Real, Real],
+    preferred: Real,
+    elbow: Real,
+    slide: bool,
+) -> tuple[Mask, Mask]:
+    """Whether the way round on ``preferred``'s side is open, and the other side's
+    (:func:`_way_open`)."""
+    return (
+        _way_open(ops, robot, sections, position, goal, preferred, elbow, slide),
+        _way_open(ops, robot, sections, position, goal, -preferred, elbow, slide),
+    )
 
 
 def _way_open(
